@@ -1,0 +1,117 @@
+"""Grid profiles: the one definition of a model's grid, shared by training, export and runtime.
+
+A profile fixes the Cartesian image (``resolution_m`` per pixel, ``width_px`` square, image up =
++x forward, right = +y), the pose candidates searched (translations within
+``±max_translation_m`` on the pixel grid, rotations ``rotation_step_rad`` apart within
+``±rotation_range_rad``), the soft-argmax temperatures (``beta_pose`` for the pose and
+``beta_cov`` for the covariance, paper eq. 3 and Sec. 4.4) and the masker's input kind.
+The exported ONNX file stores the profile in ``metadata_props`` (`to_metadata`) and the runtime
+reads it back (`from_metadata`): it is never re-typed.
+
+Default translation window: ±8 m. Sweeps are 0.25 s apart (4 Hz), so ±8 m covers 32 m/s
+(115 km/h) forward motion; the paper's ±50 m window is the ``paper_window=True`` variant.
+Rotations: the paper's ±15° in 0.5° steps (61 candidates) covers 60°/s yaw rates at 4 Hz.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, fields, replace
+
+SWEEP_PERIOD_S = 0.25
+PAPER_TRANSLATION_M = 50.0
+
+
+@dataclass(frozen=True)
+class GridProfile:
+    name: str
+    resolution_m: float
+    width_px: int
+    max_translation_m: float = 8.0
+    rotation_range_rad: float = math.pi / 12
+    rotation_step_rad: float = math.pi / 360
+    beta_pose: float = 1.0
+    beta_cov: float = 1.0
+    input_kind: str = "cartesian"  # "cartesian" | "polar"
+    mode: str = "single"  # "single" | "dual"
+    near_range_m: float = 2.5  # power closer than this is blanked (the vehicle itself)
+    unet_base_channels: int = 8
+    unet_depth: int = 5
+
+    def __post_init__(self):
+        if self.resolution_m <= 0 or self.width_px < 16:
+            raise ValueError(f"profile {self.name!r}: resolution_m must be > 0 and width_px >= 16")
+        if self.input_kind not in ("cartesian", "polar"):
+            raise ValueError(f"profile {self.name!r}: input_kind must be 'cartesian' or 'polar'")
+        if self.mode not in ("single", "dual"):
+            raise ValueError(f"profile {self.name!r}: mode must be 'single' or 'dual'")
+        if self.translation_cells * 2 + 1 > self.width_px:
+            raise ValueError(f"profile {self.name!r}: translation window wider than the image")
+        if self.width_px % (2 ** self.unet_depth):
+            raise ValueError(f"profile {self.name!r}: width_px must be divisible by 2**unet_depth")
+
+    # --- derived quantities (never stored twice) ---
+    @property
+    def translation_cells(self) -> int:
+        """n such that translations -n..n pixels (inclusive) are searched on each axis."""
+        return int(math.floor(self.max_translation_m / self.resolution_m + 1e-9))
+
+    @property
+    def num_translations(self) -> int:
+        return 2 * self.translation_cells + 1
+
+    @property
+    def rotations_rad(self) -> list[float]:
+        """Rotation candidates, symmetric about 0 and including 0."""
+        k = int(round(self.rotation_range_rad / self.rotation_step_rad))
+        return [i * self.rotation_step_rad for i in range(-k, k + 1)]
+
+    @property
+    def num_rotations(self) -> int:
+        return len(self.rotations_rad)
+
+    @property
+    def extent_m(self) -> float:
+        """Half width of the image in metres (pixel-centre to image-edge)."""
+        return self.width_px * self.resolution_m / 2
+
+    def with_(self, **changes) -> "GridProfile":
+        return replace(self, **changes)
+
+    # --- ONNX metadata round trip ---
+    def to_metadata(self) -> dict[str, str]:
+        return {"radar_odom.profile": json.dumps(asdict(self), sort_keys=True)}
+
+    @classmethod
+    def from_metadata(cls, meta: dict[str, str]) -> "GridProfile":
+        if "radar_odom.profile" not in meta:
+            raise KeyError("metadata has no 'radar_odom.profile' entry: not a radar-odom model")
+        return cls.from_dict(json.loads(meta["radar_odom.profile"]))
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "GridProfile":
+        known = {f.name for f in fields(cls)}
+        return cls(**{k: v for k, v in d.items() if k in known})
+
+
+PROFILES: dict[str, GridProfile] = {
+    p.name: p
+    for p in (
+        GridProfile("cart-0.8", resolution_m=0.8, width_px=128),
+        GridProfile("cart-0.4", resolution_m=0.4, width_px=256),
+        GridProfile("cart-0.2", resolution_m=0.2, width_px=512),
+        GridProfile("polar-0.4", resolution_m=0.4, width_px=256, input_kind="polar"),
+        GridProfile("dual-0.8", resolution_m=0.8, width_px=128, mode="dual"),
+    )
+}
+
+
+def get_profile(name: str, paper_window: bool = False) -> GridProfile:
+    """Named profile; ``paper_window=True`` selects the paper's ±50 m translation search."""
+    try:
+        p = PROFILES[name]
+    except KeyError:
+        raise KeyError(f"unknown profile {name!r}; choose one of {sorted(PROFILES)}") from None
+    if paper_window:
+        p = p.with_(max_translation_m=min(PAPER_TRANSLATION_M, p.extent_m - p.resolution_m))
+    return p

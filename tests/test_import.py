@@ -1,0 +1,21 @@
+import subprocess
+import sys
+
+
+def test_import_radar_odom_never_imports_torch():
+    code = (
+        "import sys, radar_odom\n"
+        "from radar_odom import *\n"
+        "import radar_odom.cli\n"
+        "radar_odom.cli.build_parser()\n"
+        "bad = [m for m in sys.modules if m == 'torch' or m.startswith('torch.')]\n"
+        "assert not bad, bad\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_cli_help_lists_commands():
+    out = subprocess.run(
+        [sys.executable, "-m", "radar_odom", "--help"], capture_output=True, text=True, check=True
+    ).stdout
+    assert "radar-odom" in out

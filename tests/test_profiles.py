@@ -1,0 +1,37 @@
+import math
+
+import pytest
+
+from radar_odom.profiles import PROFILES, GridProfile, get_profile
+
+
+def test_named_profiles_match_the_paper_resolutions():
+    assert {PROFILES[n].resolution_m for n in ("cart-0.8", "cart-0.4", "cart-0.2")} == {0.8, 0.4, 0.2}
+    for p in PROFILES.values():
+        rots = p.rotations_rad
+        assert len(rots) == 61  # ±15° at 0.5°, as in the paper
+        assert min(rots) == pytest.approx(-math.pi / 12) and max(rots) == pytest.approx(math.pi / 12)
+        assert 0.0 in rots
+
+
+def test_default_window_covers_fast_driving_at_4hz():
+    p = get_profile("cart-0.4")
+    assert p.translation_cells == 20 and p.num_translations == 41
+    assert p.max_translation_m / 0.25 >= 30  # m/s at 4 Hz
+
+
+def test_paper_window_selectable():
+    p = get_profile("cart-0.2", paper_window=True)
+    assert p.max_translation_m == 50.0 and p.translation_cells == 250
+
+
+def test_metadata_round_trip():
+    p = get_profile("polar-0.4").with_(beta_cov=2.789)
+    assert GridProfile.from_metadata(p.to_metadata()) == p
+
+
+def test_bad_profiles_are_rejected():
+    with pytest.raises(ValueError, match="window"):
+        GridProfile("x", resolution_m=1.0, width_px=32, max_translation_m=40)
+    with pytest.raises(KeyError, match="unknown profile"):
+        get_profile("cart-0.3")
