@@ -1,0 +1,273 @@
+"""Polar sweep → Cartesian image, in the Oxford Radar RobotCar reference geometry.
+
+Cartesian image: float32 [W, W] at ``resolution_m`` metres per pixel; row 0 is furthest ahead
+(+x forward), the column index grows towards +y (right). Pixel centre (r, c) lies at
+``x = (cW - r) * resolution_m``, ``y = (c - cW) * resolution_m`` with ``cW = (W - 1) / 2``.
+
+Polar image: float32 [A, B]; row a is the azimuth ``azimuths_rad[a]`` (0 = +x, growing towards
++y); bin b's centre is at range ``range_offset_m + (b + 0.5) * range_resolution_m`` (the
+reference kit samples bin ``u = (ρ - res/2) / res``).
+
+To interpolate across the 0/2π seam the polar image is *seam-padded*: its last row is
+prepended and its first row appended, so real rows sit at padded rows 1..A. Sampling is
+bilinear with ``cv2.remap`` (zero outside the image, so pixels beyond the last bin are 0).
+
+The sampling maps depend only on the sweep geometry and the grid, so they are built once and
+kept in a small LRU cache keyed by that geometry (`map_cache_info`, `clear_map_cache`).
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+import threading
+from collections import OrderedDict
+
+import cv2
+import numpy as np
+
+from .errors import ScanFormatError
+
+TWO_PI = 2.0 * math.pi
+_CACHE_SIZE = 8
+
+
+# --------------------------------------------------------------------------- pure geometry
+def half_extent_m(resolution_m: float, width_px: int) -> float:
+    """Distance (m) from the image centre to the centre of an edge pixel, as in the reference kit.
+
+    ``(W/2 - 0.5) * r`` for even W and ``(W // 2) * r`` for odd W: both equal ``(W - 1)/2 * r``.
+    """
+    return (width_px - 1) / 2.0 * resolution_m
+
+
+def seam_extended_azimuths(azimuths_rad: np.ndarray) -> np.ndarray:
+    """float64[A + 2]: ``az[-1] - 2π``, the azimuths, ``az[0] + 2π`` (the seam-padded rows' angles)."""
+    az = np.asarray(azimuths_rad, dtype=np.float64)
+    return np.concatenate(([az[-1] - TWO_PI], az, [az[0] + TWO_PI]))
+
+
+def cartesian_sample_maps(
+    azimuths_rad: np.ndarray,
+    num_bins: int,
+    range_resolution_m: float,
+    range_offset_m: float,
+    resolution_m: float,
+    width_px: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Where each Cartesian pixel samples the seam-padded polar image.
+
+    Args:
+        azimuths_rad: float[A], strictly increasing, in [0, 2π): angle of each polar row.
+        num_bins: B, range bins per row. Bins past the last are read as zero by ``cv2.remap``;
+            positions beyond ``num_bins`` are clamped there (same output, bounded maps).
+        range_resolution_m, range_offset_m: bin b's centre is at ``offset + (b + 0.5) * res``.
+        resolution_m: Cartesian metres per pixel. width_px: W.
+
+    Returns:
+        ``(map_bin, map_row)``: float32 [W, W] column (range bin ``u``) and row (``v``)
+        positions in the padded polar image, for ``cv2.remap(padded, map_bin, map_row, ...)``.
+        ``u = (ρ - offset - res/2) / res`` clamped at 0; ``v`` is φ located on the seam-extended
+        azimuth list by piecewise-linear interpolation, which for uniform full-circle azimuths
+        equals the reference ``v = (φ - az[0]) / (az[1] - az[0]) + 1``.
+    """
+    h = half_extent_m(resolution_m, width_px)
+    coords = np.linspace(-h, h, width_px)  # float64: maps are computed once, so be exact
+    y_m, x_m = np.meshgrid(coords, -coords)  # row 0 = +x (ahead), column grows to +y
+    rho_m = np.hypot(x_m, y_m)
+    phi_rad = np.arctan2(y_m, x_m)
+    phi_rad[phi_rad < 0] += TWO_PI  # [0, 2π): the convention of the azimuth encoder
+    u = (rho_m - range_offset_m - 0.5 * range_resolution_m) / range_resolution_m
+    np.clip(u, 0.0, float(num_bins), out=u)
+    ext = seam_extended_azimuths(azimuths_rad)
+    if np.any(np.diff(ext) <= 0):
+        raise ScanFormatError(
+            f"azimuths must increase strictly and span less than a full turn "
+            f"(first {ext[1]:.6g} rad, last {ext[-2]:.6g} rad)"
+        )
+    # rows of the padded image are 0..A+1 at angles `ext`; φ ∈ [0, 2π) always lies inside ext
+    v = np.interp(phi_rad.ravel(), ext, np.arange(ext.size, dtype=np.float64)).reshape(phi_rad.shape)
+    return u.astype(np.float32), v.astype(np.float32)
+
+
+def near_range_bins(near_range_m: float, range_resolution_m: float, range_offset_m: float, num_bins: int) -> int:
+    """How many leading bins have their centre closer than ``near_range_m`` (these get blanked)."""
+    if near_range_m <= 0:
+        return 0
+    # bin b is blanked iff offset + (b + 0.5) * res < near  <=>  b < t
+    t = (near_range_m - range_offset_m) / range_resolution_m - 0.5
+    return int(min(max(math.ceil(t), 0), num_bins))
+
+
+# --------------------------------------------------------------------------- map cache
+class _MapCache:
+    """LRU of (map_bin, map_row, bins_used) per sweep geometry and grid; thread-safe."""
+
+    def __init__(self, size: int):
+        self.size = size
+        self._entries: OrderedDict = OrderedDict()
+        self._lock = threading.Lock()
+        self.builds = 0
+        self.hits = 0
+
+    def get(self, az_rad: np.ndarray, num_bins, range_res, range_off, resolution_m, width_px):
+        key = (
+            int(az_rad.size), int(num_bins), float(range_res), float(range_off),
+            _azimuth_fingerprint(az_rad), float(resolution_m), int(width_px),
+        )
+        with self._lock:
+            entry = self._entries.get(key)
+            if entry is not None:
+                self._entries.move_to_end(key)
+                self.hits += 1
+                return entry
+        map_bin, map_row = cartesian_sample_maps(az_rad, num_bins, range_res, range_off, resolution_m, width_px)
+        # bilinear sampling at u reads bins floor(u) and floor(u)+1: copying only those columns of
+        # the (long) polar rows gives the same output for a fraction of the copy
+        bins_used = int(min(num_bins, math.floor(float(map_bin.max())) + 2))
+        entry = (map_bin, map_row, bins_used)
+        with self._lock:
+            self._entries[key] = entry
+            self._entries.move_to_end(key)
+            while len(self._entries) > self.size:
+                self._entries.popitem(last=False)
+            self.builds += 1
+        return entry
+
+    def clear(self):
+        with self._lock:
+            self._entries.clear()
+            self.builds = 0
+            self.hits = 0
+
+
+def _azimuth_fingerprint(az_rad: np.ndarray) -> bytes:
+    """Cheap identity of an azimuth list: its values rounded to 1 µrad, hashed."""
+    micro = np.round(np.asarray(az_rad, dtype=np.float64) * 1e6).astype(np.int64)
+    return hashlib.blake2b(micro.tobytes(), digest_size=16).digest()
+
+
+_CACHE = _MapCache(_CACHE_SIZE)
+
+
+def map_cache_info() -> dict:
+    """``{"builds", "hits", "entries", "max_entries"}`` of the sampling-map cache."""
+    return {"builds": _CACHE.builds, "hits": _CACHE.hits, "entries": len(_CACHE._entries), "max_entries": _CACHE.size}
+
+
+def clear_map_cache() -> None:
+    """Forget every cached map (and reset the counters)."""
+    _CACHE.clear()
+
+
+# --------------------------------------------------------------------------- conversion
+def polar_to_cartesian(scan, resolution_m: float, width_px: int, near_range_m: float = 0.0, out=None) -> np.ndarray:
+    """Cartesian image float32 [W, W] of a `RadarScan` (see the module docstring for the frames).
+
+    Args:
+        scan: a `RadarScan`; its invalid rows are already zero.
+        resolution_m: metres per pixel. width_px: W.
+        near_range_m: power at bins whose centre is closer than this is zeroed before sampling
+            (the vehicle's own returns; Oxford practice ≈ 2.5 m). 0 keeps everything.
+        out: optional float32 [W, W] C-contiguous array to write into (no allocation per sweep).
+    """
+    az = _sampling_azimuths(scan)
+    return _remap(
+        scan.power, az, scan.range_resolution_m, scan.range_offset_m, resolution_m, width_px, near_range_m, out,
+        source=scan.source,
+    )
+
+
+def polar_to_cartesian_array(
+    power,
+    azimuths_rad,
+    range_resolution_m: float,
+    range_offset_m: float,
+    resolution_m: float,
+    width_px: int,
+    near_range_m: float = 0.0,
+    out=None,
+) -> np.ndarray:
+    """Like `polar_to_cartesian` for bare arrays: ``power`` [A, B] (float, or uint8 scaled by
+    1/255) and ``azimuths_rad`` [A] strictly increasing in [0, 2π)."""
+    where = "polar_to_cartesian_array: "
+    power = np.asarray(power)
+    if power.ndim != 2 or power.shape[0] < 2 or power.shape[1] < 2:
+        raise ScanFormatError(f"{where}power must be a 2-D array [azimuths, bins], got shape {power.shape}")
+    if power.dtype == np.uint8:
+        power = power.astype(np.float32) / np.float32(255.0)
+    elif not (np.issubdtype(power.dtype, np.floating) or np.issubdtype(power.dtype, np.integer)):
+        raise ScanFormatError(f"{where}power must be numeric, got {power.dtype}")
+    az = np.asarray(azimuths_rad, dtype=np.float64)
+    if az.shape != (power.shape[0],):
+        raise ScanFormatError(
+            f"{where}azimuths_rad has shape {az.shape} but power has {power.shape[0]} rows; give one angle per row"
+        )
+    _check_azimuths(az, where)
+    return _remap(power, az, range_resolution_m, range_offset_m, resolution_m, width_px, near_range_m, out, "arrays")
+
+
+def _remap(power, az_rad, range_res, range_off, resolution_m, width_px, near_range_m, out, source) -> np.ndarray:
+    if not resolution_m > 0 or int(width_px) != width_px or width_px < 2:
+        raise ValueError(f"resolution_m must be > 0 and width_px an integer >= 2 (got {resolution_m}, {width_px})")
+    if not range_res > 0:
+        raise ScanFormatError(f"{source}: range_resolution_m must be > 0 (got {range_res})")
+    width_px = int(width_px)
+    a, b = power.shape
+    map_bin, map_row, bins_used = _CACHE.get(az_rad, b, range_res, range_off, resolution_m, width_px)
+    padded = np.empty((a + 2, bins_used), dtype=np.float32)
+    padded[1:-1] = power[:, :bins_used]
+    padded[0] = power[-1, :bins_used]
+    padded[-1] = power[0, :bins_used]
+    n_blank = near_range_bins(near_range_m, range_res, range_off, bins_used)
+    if n_blank:
+        padded[:, :n_blank] = 0.0
+    if out is not None:
+        if out.shape != (width_px, width_px) or out.dtype != np.float32 or not out.flags.c_contiguous:
+            raise ValueError(
+                f"out must be a C-contiguous float32 array of shape ({width_px}, {width_px}), "
+                f"got {out.dtype} {out.shape}"
+            )
+    result = cv2.remap(
+        padded, map_bin, map_row, cv2.INTER_LINEAR, dst=out,
+        borderMode=cv2.BORDER_CONSTANT, borderValue=0,
+    )
+    return result
+
+
+def _check_azimuths(az: np.ndarray, where: str) -> None:
+    if not np.all(np.isfinite(az)):
+        raise ScanFormatError(f"{where}azimuths_rad holds NaN/inf")
+    if np.any(np.diff(az) <= 0):
+        row = int(np.flatnonzero(np.diff(az) <= 0)[0]) + 1
+        raise ScanFormatError(f"{where}azimuths must increase strictly (row {row}); check the azimuth order")
+    if az[0] < 0 or az[-1] >= TWO_PI + 1e-6:
+        raise ScanFormatError(f"{where}azimuths_rad must lie in [0, 2π), got [{az[0]:.4g}, {az[-1]:.4g}]")
+
+
+def _sampling_azimuths(scan) -> np.ndarray:
+    """float64[A] azimuths to sample with: the scan's, with those of invalid rows made consistent.
+
+    Invalid rows hold zero power but may carry junk angles (a dropped encoder reading); the map
+    needs a strictly increasing list, so their angles are interpolated from the valid rows by row
+    index (extrapolated by the median step at the ends).
+    """
+    az = np.asarray(scan.azimuths_rad, dtype=np.float64)
+    valid = np.asarray(scan.valid, dtype=bool)
+    if valid.all() or (np.all(np.diff(az) > 0) and az[0] >= 0 and az[-1] < TWO_PI):
+        return az
+    rows = np.arange(az.size)
+    v_idx = np.flatnonzero(valid)
+    step = float(np.median(np.diff(az[v_idx]) / np.diff(v_idx))) if v_idx.size > 1 else TWO_PI / az.size
+    filled = np.interp(rows, v_idx, az[v_idx])
+    first, last = int(v_idx[0]), int(v_idx[-1])
+    lead, trail = rows[:first], rows[last + 1:]
+    filled[:first] = az[first] - step * (first - lead)
+    filled[last + 1:] = az[last] + step * (trail - last)
+    # a dropped row next to the seam may have no room at the nominal step: spread such rows evenly
+    # in the gap left before 0 / after 2π (their power is zero, only their order matters)
+    if first and filled[0] < 0:
+        filled[:first] = az[first] * lead / first
+    if trail.size and filled[-1] >= TWO_PI:
+        filled[last + 1:] = az[last] + (TWO_PI - az[last]) * (trail - last) / (trail.size + 1)
+    _check_azimuths(filled, f"{scan.source}: azimuths of the invalid rows cannot be inferred: ")
+    return filled
