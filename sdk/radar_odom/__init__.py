@@ -23,6 +23,11 @@ _LAZY = {
     "ModelMismatchError": "errors",
     "StreamError": "errors",
     "RadarOdomError": "errors",
+    "polar_to_cartesian": "polar",
+    "kitti_metrics": "metrics",
+    "load_scan": "formats",
+    "write_scan": "formats",
+    "read_sequence": "formats",
 }
 
 __all__ = sorted(_LAZY) + ["__version__"]

@@ -1,0 +1,66 @@
+"""Reading pose CSVs whose first column is a timestamp, with `SequenceError` on bad files."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import SequenceError
+
+
+def _stamp(text: str) -> int:
+    """An integer timestamp (µs or ns) as written; a decimal one is taken as seconds → µs."""
+    text = text.strip()
+    if text.lstrip("-").isdigit():
+        return int(text)  # parsed as int: ns stamps (~1.7e18) would lose digits in a float
+    return int(round(float(text) * 1e6))
+
+
+def read_numeric_csv(path, *, required=(), num_columns=None):
+    """``(names, stamps int64[M], values float64[M, K])`` from a comma-separated pose file.
+
+    The first line is a header when its first field is not a number (``names`` is then the
+    list of column names, else None). ``required`` columns must be in the header (a headerless
+    file fails); ``num_columns`` (stamp included) is checked on every row. Integer stamps are
+    returned as written (µs or ns); decimal ones are read as seconds and returned in µs.
+    """
+    path = Path(path)
+    try:
+        lines = path.read_text().splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SequenceError(f"{path}: cannot read the pose file ({exc})") from None
+    lines = [ln for ln in lines if ln.strip()]
+    names = None
+    if lines:
+        first = lines[0].split(",")[0].strip()
+        try:
+            _stamp(first)
+        except ValueError:
+            names = [c.strip() for c in lines[0].split(",")]
+            lines = lines[1:]
+    if required:
+        missing = [c for c in required if names is None or c not in names]
+        if missing:
+            raise SequenceError(
+                f"{path}: header lacks {', '.join(missing)}; expected a header line with "
+                f"{','.join(required)}"
+            )
+    width = num_columns or (len(names) if names else None)
+    if not lines:
+        raise SequenceError(f"{path}: the pose file holds no rows")
+    stamps = np.empty(len(lines), dtype=np.int64)
+    values = []
+    start = 2 if names else 1
+    for i, line in enumerate(lines):
+        parts = line.split(",")
+        if width is not None and len(parts) != width:
+            raise SequenceError(
+                f"{path}, line {i + start}: {len(parts)} columns, expected {width}; the file is "
+                "truncated or not this dataset's pose file"
+            )
+        try:
+            stamps[i] = _stamp(parts[0])
+            values.append([float(p) for p in parts[1:]])
+        except ValueError as exc:
+            raise SequenceError(f"{path}, line {i + start}: not a number ({exc})") from None
+    return names, stamps, np.asarray(values, dtype=np.float64).reshape(len(lines), -1)

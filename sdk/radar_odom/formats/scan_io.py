@@ -1,0 +1,81 @@
+"""`load_scan`: one entry point for sweeps of every supported dataset, with format detection."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..scan import RadarScan
+from .boreas import POSES_RELPATH, load_boreas
+from .mulran import OXFORD_FORM_DIR, RAW_DIR, load_mulran
+from .oxford import load_oxford
+
+FORMATS = ("oxford", "boreas", "mulran")
+
+
+def detect_format(path) -> str:
+    """Dataset of a sweep file, from where it lies (the PNG alone cannot tell Oxford from Boreas).
+
+    ``.../polar/*.png`` or ``.../polar_oxford_form/*.png`` → ``"mulran"``; ``SEQ/radar/*.png``
+    with ``SEQ/applanix/`` beside it → ``"boreas"``; anything else → ``"oxford"``.
+    """
+    folder = Path(path).parent
+    if folder.name in (RAW_DIR, OXFORD_FORM_DIR):
+        return "mulran"
+    if (folder.parent / POSES_RELPATH.parent).is_dir():
+        return "boreas"
+    return "oxford"
+
+
+def load_scan(
+    path,
+    format: str | None = None,
+    *,
+    range_resolution_m: float | None = None,
+    range_offset_m: float | None = None,
+    num_azimuths: int | None = None,
+    num_bins: int | None = None,
+    sweep_period_s: float = 0.25,
+) -> RadarScan:
+    """Read one radar sweep PNG into a `RadarScan`.
+
+    Args:
+        path: the PNG file.
+        format: ``"oxford"``, ``"boreas"``, ``"mulran"`` or None to detect it from the folder
+            layout (`detect_format`).
+        range_resolution_m: metres per bin; default per dataset (Oxford 0.0432, Boreas by
+            date 0.0596 / 0.04381, MulRan 0.05952).
+        range_offset_m: range of bin 0; default 0 (Boreas −0.31).
+        num_azimuths, num_bins: expected sweep size; a file of another size raises.
+        sweep_period_s: MulRan raw sweeps only: time spanned by the azimuths before the
+            end-of-sweep time in the file name.
+
+    Raises:
+        ScanFormatError: missing, empty, non-PNG or truncated file; not 8-bit greyscale; wrong
+            size; encoder counts not increasing; every row invalid.
+    """
+    fmt = detect_format(path) if format is None else format
+    if fmt == "oxford":
+        return load_oxford(
+            path,
+            range_resolution_m=range_resolution_m,
+            range_offset_m=range_offset_m,
+            num_azimuths=num_azimuths,
+            num_bins=num_bins,
+        )
+    if fmt == "boreas":
+        return load_boreas(
+            path,
+            range_resolution_m=range_resolution_m,
+            range_offset_m=range_offset_m,
+            num_azimuths=num_azimuths,
+            num_bins=num_bins,
+        )
+    if fmt == "mulran":
+        return load_mulran(
+            path,
+            range_resolution_m=range_resolution_m,
+            range_offset_m=range_offset_m,
+            num_azimuths=num_azimuths,
+            num_bins=num_bins,
+            sweep_period_s=sweep_period_s,
+        )
+    raise ValueError(f"unknown radar format {format!r}; choose one of {', '.join(FORMATS)} or None")

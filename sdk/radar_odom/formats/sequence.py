@@ -1,0 +1,209 @@
+"""`read_sequence`: a recording folder as time-ordered sweeps with ground truth where present.
+
+Ground truth is always returned in the Oxford relative convention (see `radar_odom.se2`):
+``gt_relative[k]`` = ``(x, y, yaw)`` of sweep k+1 in sweep k, x forward, y right, z down.
+
+- Oxford: rows of ``gt/radar_odometry.csv`` matched by ``(destination, source)_radar_timestamp``
+  = the two PNG names.
+- Boreas: absolute ENU poses of ``applanix/radar_poses.csv`` at the nearest ``GPSTime`` to each
+  file name (the sweep's middle time), converted as in `._zup`.
+- MulRan: absolute poses of ``global_pose.csv`` at the nearest stamp to each sweep's middle time
+  (file name − ``sweep_period_s`` / 2; the true mean azimuth time differs by < 1 ms), converted
+  as in `._zup`.
+
+A pair without ground truth gives a NaN row; no ground truth at all gives ``None``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import SequenceError
+from ..scan import RadarScan
+from ..se2 import chain_relative
+from . import boreas, mulran, oxford
+from ._layout import name_timestamp, to_microseconds
+from ._zup import nearest_poses, oxford_relative_from_zup
+from .scan_io import FORMATS, load_scan
+
+# MulRan keeps sweeps under sensor_data/radar/ in the release, at the top level in some copies;
+# Oxford-form copies come first because they carry real per-azimuth times and encoder angles.
+_MULRAN_DIRS = tuple(
+    Path(*parts, name)
+    for name in (mulran.OXFORD_FORM_DIR, mulran.RAW_DIR)
+    for parts in ((), ("sensor_data", "radar"))
+)
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One sweep of a sequence.
+
+    Attributes:
+        scan: the decoded sweep.
+        timestamp_us: its file-name time in µs (Oxford: first azimuth; Boreas: middle of the
+            sweep; MulRan: end of the sweep).
+        index: position in the sequence (time order).
+        gt_pose_rel: float64[3] Oxford ``(x, y, yaw)`` of this sweep in the previous one, or
+            None (first sweep, or no ground truth for this pair).
+    """
+
+    scan: RadarScan
+    timestamp_us: int
+    index: int
+    gt_pose_rel: np.ndarray | None
+
+
+class Sequence:
+    """Sweeps of a recording in time order; each is decoded only when asked for.
+
+    ``len(seq)``, ``seq[i]`` and iteration give `Frame` objects. ``timestamps_us`` int64[N]
+    (file-name times in µs), ``paths`` (the PNGs), ``gt_relative`` float64[N−1, 3] or None,
+    ``format``, ``root``.
+    """
+
+    def __init__(self, root: Path, format: str, paths, timestamps_us, gt_relative, load_kwargs: dict):
+        self.root = Path(root)
+        self.format = format
+        self.paths = tuple(paths)
+        self.timestamps_us = np.asarray(timestamps_us, dtype=np.int64)
+        self.gt_relative = gt_relative
+        self._load_kwargs = dict(load_kwargs)
+
+    def __len__(self) -> int:
+        return len(self.paths)
+
+    def __repr__(self) -> str:
+        gt = "no ground truth" if self.gt_relative is None else "ground truth"
+        return f"Sequence({str(self.root)!r}, format={self.format!r}, {len(self)} sweeps, {gt})"
+
+    def scan(self, index: int) -> RadarScan:
+        """Decode sweep ``index``."""
+        return load_scan(self.paths[index], self.format, **self._load_kwargs)
+
+    def __getitem__(self, index: int) -> Frame:
+        n = len(self)
+        if not -n <= index < n:
+            raise IndexError(f"sweep {index} out of range for a sequence of {n}")
+        index %= n
+        rel = None
+        if index > 0 and self.gt_relative is not None and np.all(np.isfinite(self.gt_relative[index - 1])):
+            rel = self.gt_relative[index - 1].copy()
+        return Frame(self.scan(index), int(self.timestamps_us[index]), index, rel)
+
+    def __iter__(self):
+        for i in range(len(self)):
+            yield self[i]
+
+    def gt_absolute(self) -> np.ndarray | None:
+        """float64[N, 3, 3] ground-truth poses chained from the first sweep (identity), or None.
+
+        A pair without ground truth makes every later pose NaN: relative poses cannot bridge it.
+        """
+        if self.gt_relative is None:
+            return None
+        return chain_relative(self.gt_relative)
+
+
+def _sweep_files(folder: Path) -> tuple[list[Path], np.ndarray]:
+    """PNG paths in time order and their file-name times in µs."""
+    files = [p for p in folder.iterdir() if p.suffix.lower() == ".png" and p.is_file()]
+    if not files:
+        raise SequenceError(f"{folder}: holds no radar PNGs")
+    stamps = [name_timestamp(p) for p in files]
+    bad = [p.name for p, s in zip(files, stamps) if s is None]
+    if bad:
+        raise SequenceError(
+            f"{folder}: sweep file names must be integer timestamps, got {', '.join(sorted(bad)[:3])}"
+        )
+    us = to_microseconds(np.array(stamps, dtype=np.int64))
+    order = np.argsort(us, kind="stable")
+    return [files[i] for i in order], us[order]
+
+
+def _detect(root: Path) -> tuple[str, Path]:
+    """(format, sweep folder) of a recording, or `SequenceError`."""
+    radar = root / "radar"
+    if radar.is_dir():
+        return ("boreas" if (root / boreas.POSES_RELPATH.parent).is_dir() else "oxford"), radar
+    for rel in _MULRAN_DIRS:
+        if (root / rel).is_dir():
+            return "mulran", root / rel
+    raise SequenceError(
+        f"{root}: no radar sweeps found; expected radar/*.png (Oxford, Boreas) or polar/*.png / "
+        "polar_oxford_form/*.png (MulRan)"
+    )
+
+
+def _sweep_folder(root: Path, fmt: str) -> Path:
+    if fmt in ("oxford", "boreas"):
+        return root / "radar"
+    for rel in _MULRAN_DIRS:
+        if (root / rel).is_dir():
+            return root / rel
+    return root / mulran.RAW_DIR  # missing: reported by _sweep_files' caller
+
+
+def _oxford_gt(root: Path, stamps_us: np.ndarray) -> np.ndarray | None:
+    path = root / oxford.GT_RELPATH
+    if not path.is_file():
+        return None
+    table = oxford.read_oxford_ground_truth(path)
+    rel = np.full((len(stamps_us) - 1, 3), np.nan)
+    for k, (a, b) in enumerate(zip(stamps_us[:-1].tolist(), stamps_us[1:].tolist())):
+        pose = table.get((a, b))
+        if pose is not None:
+            rel[k] = pose
+    return rel
+
+
+def _zup_gt(path: Path, reader, query_us: np.ndarray, max_gap_us: int) -> np.ndarray | None:
+    if not path.is_file():
+        return None
+    stamps, poses = reader(path)
+    return oxford_relative_from_zup(nearest_poses(query_us, stamps, poses, max_gap_us))
+
+
+def read_sequence(
+    seq_dir, format: str | None = None, *, max_pose_gap_s: float = 0.1, **load_kwargs
+) -> Sequence:
+    """Open a recording folder (nothing is decoded until a frame is asked for).
+
+    Args:
+        seq_dir: the sequence folder (Oxford: ``SEQ/radar/``, ``SEQ/gt/``; Boreas: ``SEQ/radar/``,
+            ``SEQ/applanix/``; MulRan: ``SEQ/[sensor_data/radar/]polar[_oxford_form]/``,
+            ``SEQ/global_pose.csv``).
+        format: ``"oxford"``, ``"boreas"``, ``"mulran"`` or None to detect from the layout.
+        max_pose_gap_s: Boreas/MulRan: a sweep whose nearest pose stamp is further away than
+            this has no ground truth (0.1 s: 1 m at 10 m/s, and under half the 0.25 s sweep
+            period, so a neighbouring sweep's pose is never taken).
+        **load_kwargs: passed to `load_scan` for every sweep (e.g. ``range_resolution_m``).
+
+    Raises:
+        SequenceError: no radar PNGs, names that are not timestamps, unreadable ground truth.
+    """
+    root = Path(seq_dir)
+    if not root.is_dir():
+        raise SequenceError(f"{root}: not a folder; give a recording folder holding radar/ or polar/")
+    if format is None:
+        fmt, folder = _detect(root)
+    elif format in FORMATS:
+        fmt, folder = format, _sweep_folder(root, format)
+    else:
+        raise ValueError(f"unknown radar format {format!r}; choose one of {', '.join(FORMATS)} or None")
+    if not folder.is_dir():
+        raise SequenceError(f"{root}: no {folder.name}/ folder of radar PNGs for format {fmt!r}")
+    paths, stamps = _sweep_files(folder)
+    gap_us = int(round(max_pose_gap_s * 1e6))
+    if fmt == "oxford":
+        rel = _oxford_gt(root, stamps)
+    elif fmt == "boreas":
+        rel = _zup_gt(root / boreas.POSES_RELPATH, boreas.read_boreas_poses, stamps, gap_us)
+    else:
+        half = int(round(load_kwargs.get("sweep_period_s", mulran.MULRAN_SWEEP_PERIOD_S) * 1e6 / 2))
+        rel = _zup_gt(root / mulran.POSES_FILENAME, mulran.read_mulran_poses, stamps - half, gap_us)
+    if rel is not None and (len(rel) == 0 or not np.isfinite(rel).all(axis=1).any()):
+        rel = None  # a ground-truth file that covers none of these sweeps is no ground truth
+    return Sequence(root, fmt, paths, stamps, rel, load_kwargs)
