@@ -1,0 +1,230 @@
+"""`MaskedCorrelator`: mask → masked image → rotate ×K → correlate → soft-argmax (paper Alg. 1).
+
+One module holds the whole differentiable pipeline for training and export:
+
+* masking ``"learned"``: the U-Net predicts ``M`` and the features are ``S = M ⊙ Z``;
+  ``"raw"``: ``M ≡ 1`` (the raw-scan baseline, no parameters); ``"external"``: the caller
+  passes the masks (e.g. the simulator's static labels, or masks from another network).
+* ``profile.mode`` ``"single"`` masks each sweep alone, ``"dual"`` stacks both sweeps into a
+  2-channel U-Net input and gets both masks at once.
+* ``profile.input_kind`` ``"cartesian"``: sweeps are Cartesian images float[B, W, W];
+  ``"polar"``: sweeps are range-reduced polar images float[B, A, B'] (see `PolarToCartesian`),
+  masked in polar and turned into Cartesian features inside the model.
+* ``dft`` ``"fft"`` (training) or ``"matmul"`` (export); the same volume either way.
+
+Poses are the later sweep's pose in the earlier sweep's frame (Oxford convention), as
+``(x m, y m, yaw rad)``; the covariance is 3×3 over the same. Constant grids and DFT matrices
+are non-persistent buffers, so ``state_dict`` holds only the U-Net weights.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from torch import nn
+
+from radar_odom.polar import cartesian_sample_maps, near_range_bins
+from radar_odom.profiles import GridProfile
+
+from .correlation import Rotator, candidate_poses, make_correlation
+from .softargmax import soft_argmax
+from .unet import UNet
+
+MASKINGS = ("learned", "raw", "external")
+
+# The Navtech CTS350-X as recorded in Oxford Radar RobotCar (and simulated by default): the
+# sweep geometry a polar model is built for unless told otherwise. Keys as `RadarScan.geometry`.
+CTS350X_GEOMETRY = {
+    "num_azimuths": 400,
+    "num_bins": 3768,
+    "range_resolution_m": 0.0432,
+    "range_offset_m": 0.0,
+}
+
+
+class PolarToCartesian(nn.Module):
+    """Range-reduced polar images float[B, A, B'] → Cartesian float[B, W, W], in the model.
+
+    The range axis is reduced before the masker so that the polar U-Net costs about as much as
+    the Cartesian one: ``bin_factor = round(resolution_m / range_resolution_m)`` consecutive
+    bins are averaged (0.4 m/px on a 0.0432 m radar: 9 bins → 0.389 m cells) and only the
+    ``num_bins`` reduced bins that reach the image corners are kept. The caller reduces
+    (``power[:, :num_bins·bin_factor].reshape(A, num_bins, bin_factor).mean(-1)``, as the
+    runtime does), so the graph input stays small.
+
+    Azimuths are assumed uniform, row a at ``2π·a/A`` (the sweep's rows rolled so that row 0
+    is the one nearest 0 rad). The sampling grid is `radar_odom.polar.cartesian_sample_maps`
+    on the reduced geometry, turned into a ``grid_sample`` grid on the seam-padded image, so
+    the mapping is `polar_to_cartesian`'s (bilinear, seam interpolated, zero beyond the last
+    bin). Reduced bins whose centre lies closer than ``profile.near_range_m`` are zeroed (the
+    vehicle's own returns), like the Cartesian path's near-range blanking.
+    """
+
+    def __init__(self, profile: GridProfile, sweep_geometry: dict):
+        super().__init__()
+        rr = float(sweep_geometry["range_resolution_m"])
+        offset = float(sweep_geometry["range_offset_m"])
+        self.num_azimuths = int(sweep_geometry["num_azimuths"])
+        self.bin_factor = max(1, int(round(profile.resolution_m / rr)))
+        reduced_rr = rr * self.bin_factor
+        azimuths = 2 * np.pi * np.arange(self.num_azimuths) / self.num_azimuths
+        available = int(sweep_geometry["num_bins"]) // self.bin_factor
+        map_bin, _ = cartesian_sample_maps(azimuths, available, reduced_rr, offset,
+                                           profile.resolution_m, profile.width_px)
+        # bilinear sampling at u reads bins floor(u) and floor(u) + 1: keep exactly those
+        self.num_bins = int(min(available, math.floor(float(map_bin.max())) + 2))
+        map_bin, map_row = cartesian_sample_maps(azimuths, self.num_bins, reduced_rr, offset,
+                                                 profile.resolution_m, profile.width_px)
+        # align_corners=True: −1/+1 are the centres of the first/last bin and padded row
+        grid = np.stack([2 * map_bin / max(self.num_bins - 1, 1) - 1,
+                         2 * map_row / (self.num_azimuths + 1) - 1], axis=-1)
+        self.register_buffer("grid", torch.from_numpy(grid.astype(np.float32))[None],
+                             persistent=False)
+        keep = torch.ones(self.num_bins)
+        keep[: near_range_bins(profile.near_range_m, reduced_rr, offset, self.num_bins)] = 0.0
+        self.register_buffer("near_keep", keep, persistent=False)
+
+    @property
+    def input_shape(self) -> tuple[int, int]:
+        """(A, B'): one reduced polar sweep as the model takes it."""
+        return self.num_azimuths, self.num_bins
+
+    def forward(self, polar: torch.Tensor) -> torch.Tensor:
+        """float[B, A, B'] → float[B, W, W] (Cartesian convention, see correlation.py)."""
+        polar = polar * self.near_keep
+        padded = torch.cat([polar[:, -1:], polar, polar[:, :1]], dim=1)  # seam rows
+        grid = self.grid.expand(polar.shape[0], *self.grid.shape[1:])
+        return nn.functional.grid_sample(padded.unsqueeze(1), grid, mode="bilinear",
+                                         padding_mode="zeros", align_corners=True).squeeze(1)
+
+
+def support_disc(width_px: int, translation_cells: int) -> torch.Tensor:
+    """float[W, W]: 1 inside the disc of radius ``(W−1)/2 − n − 1`` px about the image centre.
+
+    Features are cut to this disc so that the DFT's circular correlation equals the linear one
+    for every searched shift: a disc stays a disc under rotation (bilinear sampling spreads it
+    by < 1 px), and shifted by at most n px per axis it stays inside the image, so nothing
+    wraps round. Without it, returns beyond the image edge (radar sees ~160 m, the 0.4 m/px
+    image ±51 m) would wrap to the opposite side and score as matches. It also drops the
+    corners, which rotation would leave half-empty anyway.
+    """
+    centre = (width_px - 1) / 2
+    radius = centre - translation_cells - 1
+    rows = torch.arange(width_px, dtype=torch.float64) - centre
+    r2 = rows[:, None] ** 2 + rows[None, :] ** 2
+    return (r2 <= radius**2).to(torch.float32)
+
+
+class MaskedCorrelator(nn.Module):
+    """The paper's model for one `GridProfile`; see the module docstring for the options.
+
+    Shapes: a *sweep* is float[B, W, W] (Cartesian kind) or float[B, A, B'] (polar kind, see
+    `PolarToCartesian.input_shape`); volumes are float[B, K, N, N]; poses float[B, 3];
+    covariances float[B, 3, 3]. The stream *state* is the previous sweep's half spectrum
+    float[B, 2, W, W//2 + 1] in single mode, and the previous sweep itself in dual mode (its
+    mask depends on the next sweep, so nothing can be precomputed).
+    """
+
+    def __init__(self, profile: GridProfile, masking: str = "learned", dft: str = "fft",
+                 sweep_geometry: dict | None = None):
+        super().__init__()
+        if masking not in MASKINGS:
+            raise ValueError(f"masking={masking!r}; choose one of {MASKINGS}")
+        self.profile = profile
+        self.masking = masking
+        self.dft = dft
+        self.dual = profile.mode == "dual"
+        channels = 2 if self.dual else 1
+        self.masker = (UNet(channels, channels, profile.unet_base_channels, profile.unet_depth)
+                       if masking == "learned" else None)
+        self.sweep_geometry = dict(sweep_geometry or CTS350X_GEOMETRY)
+        self.to_cartesian = (PolarToCartesian(profile, self.sweep_geometry)
+                             if profile.input_kind == "polar" else None)
+        self.rotator = Rotator(profile)
+        self.correlation = make_correlation(dft, profile.width_px, profile.translation_cells)
+        self.register_buffer("candidates", candidate_poses(profile), persistent=False)
+        self.register_buffer("support", support_disc(profile.width_px, profile.translation_cells),
+                             persistent=False)
+
+    # ------------------------------------------------------------------ masks and features
+    def mask(self, x: torch.Tensor) -> torch.Tensor:
+        """Masks in [0, 1] of sweeps x: [B, H, W] (single) or [B, 2, H, W] (dual, prev+cur),
+        in the input's own domain (polar masks for the polar kind); the same shape out."""
+        if self.masking == "external":
+            raise ValueError("masking='external': the model has no masker; pass the masks")
+        if self.masker is None:
+            return torch.ones_like(x)
+        if self.dual:
+            return self.masker(x)
+        return self.masker(x.unsqueeze(1)).squeeze(1)
+
+    def _to_features(self, sweep: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """``S = M ⊙ Z`` as a Cartesian image float[B, W, W] (polar: masked, then mapped)."""
+        masked = mask * sweep
+        cart = masked if self.to_cartesian is None else self.to_cartesian(masked)
+        return cart * self.support
+
+    def _masks(self, prev, cur, prev_mask, cur_mask):
+        if self.masking == "external":
+            if prev_mask is None or cur_mask is None:
+                raise ValueError("masking='external' needs prev_mask and cur_mask (same shapes "
+                                 "as the sweeps, values in [0, 1])")
+            return prev_mask, cur_mask
+        if prev_mask is not None or cur_mask is not None:
+            raise ValueError(f"masking={self.masking!r} predicts its own masks; "
+                             "build the model with masking='external' to pass masks")
+        if self.dual:
+            both = self.mask(torch.stack([prev, cur], dim=1))
+            return both[:, 0], both[:, 1]
+        return self.mask(prev), self.mask(cur)
+
+    def features(self, prev, cur, prev_mask=None, cur_mask=None):
+        """(S_prev, S_cur), Cartesian float[B, W, W] each: the images the search matches."""
+        m_prev, m_cur = self._masks(prev, cur, prev_mask, cur_mask)
+        return self._to_features(prev, m_prev), self._to_features(cur, m_cur)
+
+    def _single_features(self, sweep, mask=None) -> torch.Tensor:
+        if self.masking == "external":
+            if mask is None:
+                raise ValueError("masking='external' needs the sweep's mask")
+            return self._to_features(sweep, mask)
+        return self._to_features(sweep, self.mask(sweep))
+
+    # ------------------------------------------------------------------ pair form
+    def correlation_volume(self, prev, cur, prev_mask=None, cur_mask=None) -> torch.Tensor:
+        """float[B, K, N, N] scores of the pose candidates (`candidates`, same layout)."""
+        s_prev, s_cur = self.features(prev, cur, prev_mask, cur_mask)
+        corr = self.correlation
+        return corr.correlate(corr.spectrum(s_prev), corr.spectrum(self.rotator(s_cur)))
+
+    def pose_from_volume(self, volume: torch.Tensor):
+        """(pose [B, 3], covariance [B, 3, 3]) by soft-argmax with the profile's two βs."""
+        return soft_argmax(volume, self.candidates, self.profile.beta_pose, self.profile.beta_cov)
+
+    def forward(self, prev, cur, prev_mask=None, cur_mask=None):
+        """(pose float[B, 3], covariance float[B, 3, 3]) of ``cur``'s frame in ``prev``'s."""
+        return self.pose_from_volume(self.correlation_volume(prev, cur, prev_mask, cur_mask))
+
+    # ------------------------------------------------------------------ stream form
+    def initial_state(self, cur, cur_mask=None) -> torch.Tensor:
+        """The state a stream keeps after its first sweep ``cur``."""
+        if self.dual:
+            return cur
+        return self.correlation.spectrum(self._single_features(cur, cur_mask))
+
+    def stream_step(self, cur, prev_state, cur_mask=None):
+        """(pose, covariance, new_state) for sweep ``cur`` against the previous step's state.
+
+        Single mode masks and transforms each sweep once: the new state is the spectrum of the
+        yaw-0 slice of the rotated stack (the unrotated image), not a fresh transform.
+        """
+        if self.dual:
+            if cur_mask is not None:
+                raise ValueError("dual mode predicts both masks itself; cur_mask is not used")
+            pose, cov = self(prev_state, cur)
+            return pose, cov, cur
+        corr = self.correlation
+        spectra = corr.spectrum(self.rotator(self._single_features(cur, cur_mask)))
+        pose, cov = self.pose_from_volume(corr.correlate(prev_state, spectra))
+        return pose, cov, spectra[:, self.rotator.zero_index]
