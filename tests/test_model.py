@@ -222,3 +222,17 @@ def test_support_disc_makes_circular_correlation_linear():
                 shifted = padded[n + i: n + i + 32, n - j: n - j + 32]
                 assert abs(float((a * shifted).sum()) - float(vol[k, i + n, j + n])) < 1e-3
     assert float(model.support.sum()) < 32 * 32 and float(model.support[16, 16]) == 1.0
+
+
+def test_mask_downsample_runs_the_unet_on_the_pooled_image():
+    from radar_odom.profiles import GridProfile
+    p = GridProfile("t", resolution_m=1.0, width_px=64, max_translation_m=3,
+                    rotation_range_rad=0.02, rotation_step_rad=0.02, unet_base_channels=2,
+                    unet_depth=2, mask_downsample=4)
+    model = MaskedCorrelator(p)
+    seen = []
+    model.masker.register_forward_hook(lambda mod, inp, out: seen.append(tuple(inp[0].shape)))
+    with torch.no_grad():
+        m = model.mask(torch.rand(2, 64, 64))
+    assert seen == [(2, 1, 16, 16)] and m.shape == (2, 64, 64)
+    assert float(m.min()) >= 0 and float(m.max()) <= 1

@@ -155,9 +155,15 @@ class MaskedCorrelator(nn.Module):
             raise ValueError("masking='external': the model has no masker; pass the masks")
         if self.masker is None:
             return torch.ones_like(x)
-        if self.dual:
-            return self.masker(x)
-        return self.masker(x.unsqueeze(1)).squeeze(1)
+        z = x if self.dual else x.unsqueeze(1)
+        f = self.profile.mask_downsample if self.to_cartesian is None else 1
+        if f > 1:  # mask on a coarser grid (see GridProfile.mask_downsample)
+            m = self.masker(nn.functional.avg_pool2d(z, f))
+            m = nn.functional.interpolate(m, scale_factor=float(f), mode="bilinear",
+                                          align_corners=False)
+        else:
+            m = self.masker(z)
+        return m if self.dual else m.squeeze(1)
 
     def _to_features(self, sweep: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """``S = M ⊙ Z`` as a Cartesian image float[B, W, W] (polar: masked, then mapped)."""
