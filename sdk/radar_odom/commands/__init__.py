@@ -4,4 +4,6 @@
 ``func`` to a callable taking the parsed ``args`` that does the work, importing what it needs.
 A command module is listed here only once it works.
 """
-COMMANDS: list[str] = []
+COMMANDS: list[str] = [
+    "simulate",
+]
