@@ -21,6 +21,10 @@ class StreamError(RadarOdomError, ValueError):
     """A stream of sweeps is broken: timestamps go backwards or jump by more than allowed."""
 
 
+class ExportError(RadarOdomError, ValueError):
+    """An export request cannot be met (form and search that do not go together, ...)."""
+
+
 class MissingExtraError(RadarOdomError, ImportError):
     """An optional dependency is not installed; the message gives the pip line."""
 

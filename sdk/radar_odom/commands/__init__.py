@@ -5,5 +5,7 @@
 A command module is listed here only once it works.
 """
 COMMANDS: list[str] = [
+    "train",
+    "calibrate",
     "simulate",
 ]

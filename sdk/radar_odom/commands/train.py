@@ -1,0 +1,88 @@
+"""``radar-odom train [DATA...] -o model.pt``: train the masker (or describe a baseline)."""
+from __future__ import annotations
+
+import argparse
+
+HELP = "train the masking network with pose supervision (or the raw / supervised-mask baselines)"
+
+DESCRIPTION = HELP + """.
+
+DATA are recording folders with ground truth (Oxford, Boreas or MulRan layout); the last 20%%
+of them (by order given, at least one) are held out for validation unless --val-data names
+them. Without DATA, simulated drives are used: every scenario in --scenarios for every seed
+in --sim-seeds (training) and --val-seeds (validation). Simulated drives are converted once
+and cached under $RADAR_ODOM_CACHE (default ~/.cache/radar-odom).
+
+Writes OUTPUT (best checkpoint by validation loss), OUTPUT.state.pt (for --resume),
+OUTPUT.log.json and OUTPUT.loss.png. Runs under `torchrun --nproc_per_node=N -m radar_odom
+train ...` with DistributedDataParallel (gloo on CPU). Needs the export extra (torch)."""
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("train", help=HELP, description=DESCRIPTION,
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("data", nargs="*", metavar="DATA", help="recording folders with ground truth (none: simulate)")
+    p.add_argument("-o", "--output", required=True, help="checkpoint to write (.pt)")
+    g = p.add_argument_group("model")
+    g.add_argument("--profile", default="cart-0.8",
+                   help="grid profile name (cart-0.8, cart-0.4, cart-0.2, ...) or a JSON file of GridProfile "
+                        "fields (default: %(default)s)")
+    g.add_argument("--masking", choices=("learned", "raw"), default="learned",
+                   help="learned: train the U-Net; raw: mask = 1, the raw-scan baseline, nothing trained "
+                        "(default: %(default)s)")
+    g.add_argument("--supervised-masks", action="store_true",
+                   help="baseline: train the masks with BCE against the simulator's static labels, no pose loss")
+    g.add_argument("--unet-base-channels", type=int, default=None,
+                   help="override the profile's U-Net width (paper: 8); stored in the checkpoint's profile")
+    g.add_argument("--unet-depth", type=int, default=None, help="override the profile's U-Net depth (paper: 5)")
+    g.add_argument("--beta-pose", type=float, default=None,
+                   help="override the profile's soft-argmax temperature for the pose (paper: 1 on Oxford "
+                        "images); stored in the checkpoint's profile")
+    g = p.add_argument_group("data")
+    g.add_argument("--val-data", nargs="+", default=None, metavar="DIR", help="validation recording folders")
+    g.add_argument("--sim-seeds", default="1000-1005", help="training world seeds, e.g. 1000-1005,1010 "
+                   "(policy: 1000-1999; default: %(default)s)")
+    g.add_argument("--val-seeds", default="2000", help="validation world seeds (policy: 2000-2999; default: %(default)s)")
+    g.add_argument("--scenarios", default="urban,heavy_traffic,open,highway",
+                   help="comma-separated simulator scenarios (default: %(default)s)")
+    g.add_argument("--frames", type=int, default=200, help="sweeps per simulated drive (default: %(default)s)")
+    g.add_argument("--workers", type=int, default=2, help="processes simulating drives (default: %(default)s)")
+    g = p.add_argument_group("optimisation")
+    g.add_argument("--epochs", type=int, default=30, help="maximum epochs (default: %(default)s)")
+    g.add_argument("--minutes", type=float, default=None,
+                   help="wall-clock budget of this invocation; stops mid-epoch, validates and saves")
+    g.add_argument("--steps-per-epoch", type=int, default=None,
+                   help="cap on steps per epoch (validation and checkpointing happen once per epoch)")
+    g.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate (paper: 1e-5 on a GPU; default: %(default)s)")
+    g.add_argument("--lr-decay", type=float, default=0.9, help="learning-rate factor per epoch (default: %(default)s)")
+    g.add_argument("--batch", type=int, default=8, help="pairs per step and process (paper: 5; default: %(default)s)")
+    g.add_argument("--pose-loss", choices=("mse", "ce", "ce+mse"), default="mse",
+                   help="mse: the paper's squared soft-argmax error (in grid cells); ce: cross-entropy of the "
+                        "candidate softmax against the true pose (Barsan et al. 2018), strong gradients even "
+                        "when the mean sits on a wrong peak; ce+mse: both (default: %(default)s)")
+    g.add_argument("--yaw-weight", type=float, default=1.0,
+                   help="weight of the yaw term; errors are measured in grid cells (default: %(default)s)")
+    g.add_argument("--rotate-deg", type=float, default=0.0,
+                   help="augment by rotating both sweeps by a common random angle within ±this (default: off)")
+    g.add_argument("--no-mirror", action="store_true", help="disable the left/right mirror augmentation")
+    g.add_argument("--no-swap", action="store_true", help="disable the swap-pair-order augmentation")
+    g.add_argument("--seed", type=int, default=0, help="seed of initial weights, shuffling, augmentation")
+    g.add_argument("--threads", type=int, default=None, help="torch threads per process (default: cores / processes)")
+    g.add_argument("--resume", action="store_true", help="continue from OUTPUT.state.pt")
+    g.add_argument("--init-from", default=None, metavar="CKPT",
+                   help="start from another checkpoint's weights (same U-Net size), e.g. a cart-0.8 model for "
+                        "cart-0.4, whose U-Net runs on the same 0.8 m/px grid (mask_downsample 2)")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..errors import MissingExtraError
+
+    try:
+        import torch  # noqa: F401
+    except ImportError as exc:
+        raise MissingExtraError("torch", "export") from exc
+    from radar_odom_export.train import run_from_args
+
+    run_from_args(args)
+    return 0
