@@ -28,6 +28,10 @@ _LAZY = {
     "load_scan": "formats",
     "write_scan": "formats",
     "read_sequence": "formats",
+    "RadarOdometer": "odometer",
+    "Estimate": "odometer",
+    "pretrained": "pretrained",
+    "pretrained_names": "pretrained",
 }
 
 __all__ = sorted(_LAZY) + ["__version__"]

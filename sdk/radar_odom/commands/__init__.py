@@ -5,6 +5,9 @@
 A command module is listed here only once it works.
 """
 COMMANDS: list[str] = [
+    "export",
+    "run",
+    "demo",
     "train",
     "calibrate",
     "simulate",

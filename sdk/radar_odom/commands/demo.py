@@ -1,0 +1,26 @@
+"""``radar-odom demo``: simulate a short drive, run a shipped model on it, print metrics, save a plot."""
+from __future__ import annotations
+
+HELP = "simulate a short drive (held-out seed) and run a shipped model on it end to end"
+
+
+def register(subparsers) -> None:
+    from ..demo import DEFAULT_FRAMES, DEFAULT_SEED
+
+    p = subparsers.add_parser("demo", help=HELP, description=HELP + "; prints metrics and saves a plot.")
+    p.add_argument("--frames", type=int, default=DEFAULT_FRAMES, help=f"sweeps to simulate, 4 per second (default: {DEFAULT_FRAMES})")
+    p.add_argument("--model", default=None,
+                   help="shipped model name or .onnx path (default: cart-0.4 if shipped, else the first shipped)")
+    p.add_argument("--seed", type=int, default=DEFAULT_SEED, help=f"simulator seed (default {DEFAULT_SEED}: never used in training)")
+    p.add_argument("--scenario", default="urban", help="simulator scenario: urban, heavy_traffic, open or highway (default: urban)")
+    p.add_argument("-o", "--output", default="radar-odom-demo", help="folder for the drive, trajectories and plot (default: ./radar-odom-demo)")
+    p.add_argument("--threads", type=int, default=None, help="onnxruntime threads (default: physical cores)")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..demo import run_demo
+
+    run_demo(frames=args.frames, model=args.model, seed=args.seed, scenario=args.scenario,
+             out_dir=args.output, threads=args.threads, echo=print)
+    return 0

@@ -1,0 +1,38 @@
+"""``radar-odom export model.pt [-o model.onnx] [--form stream|pair] [--search exhaustive|fast] [--opset N]``."""
+from __future__ import annotations
+
+HELP = "export a trained checkpoint to one self-contained ONNX graph (sweep in, pose + covariance out)"
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "export", help=HELP, description=HELP + ". Needs the export extra (torch, onnx, onnxscript)."
+    )
+    p.add_argument("checkpoint", help="checkpoint written by `radar-odom train` (.pt)")
+    p.add_argument("-o", "--output", default=None, help="ONNX file to write (default: CHECKPOINT with .onnx)")
+    p.add_argument("--form", choices=("stream", "pair"), default=None,
+                   help="stream: (sweep, previous state) -> (pose, covariance, state), masks each sweep once; "
+                        "pair: (previous sweep, sweep) -> (pose, covariance), for evaluation. Default: stream")
+    p.add_argument("--search", choices=("exhaustive", "fast"), default="exhaustive",
+                   help="exhaustive: score every yaw candidate (the paper's search); fast: coarse-to-fine yaw "
+                        "search, several times faster on a CPU, stream form only (default: exhaustive)")
+    p.add_argument("--opset", type=int, default=18, help="ONNX opset to write; the written file is checked to have it (default: 18)")
+    p.add_argument("--no-verify", action="store_true",
+                   help="skip the onnxruntime-vs-torch check run on a random sweep after writing")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from pathlib import Path
+
+    from ..errors import MissingExtraError
+
+    try:
+        from radar_odom_export.onnx_export import export_checkpoint
+    except ImportError as exc:  # torch / onnx missing: say which extra to install
+        raise MissingExtraError(getattr(exc, "name", None) or "torch", "export") from exc
+    out = Path(args.output) if args.output else Path(args.checkpoint).with_suffix(".onnx")
+    report = export_checkpoint(args.checkpoint, out, form=args.form, opset=args.opset, verify=not args.no_verify,
+                               search=args.search)
+    print(report.summary())
+    return 0

@@ -1,0 +1,285 @@
+"""`RadarOdometer`: radar odometry over a stream of sweeps with one exported ONNX graph.
+
+    odo = RadarOdometer("model.onnx")
+    for scan in sweeps:
+        est = odo.step(scan)          # None for the first sweep of a stream
+    odo.trajectory.poses              # float64[N, 3, 3] absolute poses, first sweep = identity
+
+An `Estimate` is the pose of the new sweep expressed in the previous sweep's frame (Oxford
+ground-truth convention, see `radar_odom.se2`) with its 3×3 covariance over (x, y, yaw).
+
+Faults, and what the odometer does about them (never a NaN, never a broken trajectory):
+
+- A sweep whose timestamp (first azimuth) does not increase → `StreamError`.
+- A gap of more than ``max_gap_s`` seconds since the previous sweep: ``on_gap="raise"``
+  (default) raises `StreamError` (call `reset()` and go on); ``on_gap="reset"`` resets the
+  stream itself, so that sweep starts a new trajectory at identity and `step` returns None.
+- A sweep whose geometry (azimuth count, bin count, range resolution, range offset) differs
+  from the one in the model's metadata → `ModelMismatchError` naming both.
+- A *degenerate* sweep — blank (almost no power), saturated (most bins at full scale), or
+  mostly invalid (fewer than ``min_valid_fraction`` of its azimuth rows valid) — or a graph
+  output that is not finite: the estimate is the constant-velocity prior (the previous relative
+  pose scaled by the time step; zero if there is none) with the covariance of a uniform
+  distribution over the whole search window (``a²/3`` per axis for a window ``±a``), and its
+  ``flags`` hold ``"degenerate"`` and the reason. Such a sweep never becomes the reference:
+  the next sweep is matched against the last good one and its estimate, flagged ``"bridged"``,
+  is re-expressed relative to the degenerate sweep's prior pose, so the absolute trajectory
+  follows the good matches. A bridged covariance is the match covariance plus the window
+  covariance (first order: the prior pose it is relative to is that uncertain).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import ModelMismatchError, StreamError
+from .onnx_model import GEOMETRY_KEYS, OnnxModel
+from .polar import polar_to_cartesian
+from .scan import RadarScan
+from .se2 import invert, se2, to_xyyaw
+
+DEGENERATE = "degenerate"
+BRIDGED = "bridged"
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One odometry step.
+
+    Attributes:
+        pose: float64[3] (x m, y m, yaw rad): the new sweep's frame in the previous sweep's frame.
+        covariance: float64[3, 3] over (x, y, yaw), symmetric.
+        timestamp_us: the new sweep's timestamp (first azimuth, the Oxford file name).
+        flags: empty for a normal match; ``{"degenerate", reason}`` for a prior-only estimate,
+            ``{"bridged"}`` when matched against an older sweep across a degenerate one.
+    """
+
+    pose: np.ndarray
+    covariance: np.ndarray
+    timestamp_us: int
+    flags: frozenset = field(default_factory=frozenset)
+
+    @property
+    def degenerate(self) -> bool:
+        return DEGENERATE in self.flags
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Absolute poses of every sweep of the current stream (first = identity)."""
+
+    poses: np.ndarray  # float64[N, 3, 3]
+    timestamps_us: np.ndarray  # int64[N]
+
+    def __len__(self) -> int:
+        return len(self.timestamps_us)
+
+
+def sweep_problem(scan: RadarScan, min_valid_fraction: float = 0.5) -> str | None:
+    """Why a sweep cannot be matched (``"invalid_rows"``, ``"saturated"``, ``"blank"``), or None.
+
+    Statistics are taken over the valid rows on every 4th range bin: the decision is about
+    large fractions of the sweep, so a subsample decides it as well at a quarter of the cost.
+    Thresholds: blank when fewer than 0.1 % of bins exceed 2/255 (a receiver's noise floor alone
+    exceeds that); saturated when more than half of the bins are at ≥ 0.95 of full scale.
+    """
+    valid_fraction = float(np.count_nonzero(scan.valid)) / scan.num_azimuths
+    if valid_fraction < min_valid_fraction:
+        return "invalid_rows"
+    p = scan.power[:, ::4][scan.valid]
+    if np.count_nonzero(p >= 0.95) > 0.5 * p.size:
+        return "saturated"
+    if np.count_nonzero(p > 2.0 / 255.0) < 1e-3 * p.size:
+        return "blank"
+    return None
+
+
+def window_covariance(profile) -> np.ndarray:
+    """float64[3, 3]: covariance of a uniform pose over the search window (knows nothing)."""
+    a = profile.translation_cells * profile.resolution_m
+    r = max(abs(v) for v in profile.rotations_rad)
+    return np.diag([a * a / 3.0, a * a / 3.0, r * r / 3.0])
+
+
+class RadarOdometer:
+    """Odometry with an exported radar-odom ONNX model, configured from its metadata.
+
+    Args:
+        model: path of the ``.onnx`` file (e.g. ``radar_odom.pretrained("cart-0.4")``).
+        threads: onnxruntime intra-op threads; default: the number of physical cores.
+        providers: onnxruntime execution providers; default CPU.
+        max_gap_s: largest allowed time between consecutive sweeps (first azimuths), seconds.
+        on_gap: ``"raise"`` (`StreamError`) or ``"reset"`` (start a new stream) on a larger gap.
+        min_valid_fraction: below this fraction of valid azimuth rows a sweep is degenerate.
+    """
+
+    def __init__(self, model, threads: int | None = None, providers=None, max_gap_s: float = 1.0,
+                 on_gap: str = "raise", min_valid_fraction: float = 0.5):
+        if on_gap not in ("raise", "reset"):
+            raise ValueError(f"on_gap must be 'raise' or 'reset', got {on_gap!r}")
+        self._model = model if isinstance(model, OnnxModel) else OnnxModel(model, threads, providers)
+        self.info = self._model.info
+        self.profile = self.info.profile
+        self.max_gap_s = float(max_gap_s)
+        self.on_gap = on_gap
+        self.min_valid_fraction = float(min_valid_fraction)
+        self._prior_cov = window_covariance(self.profile)
+        self.reset()
+
+    @property
+    def path(self):
+        return self._model.path
+
+    def reset(self) -> None:
+        """Forget the stream: the next sweep starts a new trajectory at identity."""
+        self._poses: list[np.ndarray] = []
+        self._stamps: list[int] = []
+        self._ref_feed: np.ndarray | None = None  # state (stream form) or sweep input (pair form)
+        self._ref_index = -1  # trajectory index of the sweep ``_ref_feed`` belongs to
+        self._last_rel: np.ndarray | None = None  # last relative pose, for the motion prior
+        self._last_dt_s = 0.0
+
+    @property
+    def trajectory(self) -> Trajectory:
+        if not self._poses:
+            return Trajectory(np.zeros((0, 3, 3)), np.zeros(0, dtype=np.int64))
+        return Trajectory(np.stack(self._poses), np.asarray(self._stamps, dtype=np.int64))
+
+    # --- the step -------------------------------------------------------------------------
+    def step(self, scan: RadarScan) -> Estimate | None:
+        """Add one sweep; return its pose relative to the previous sweep (None for the first)."""
+        self._check_geometry(scan)
+        ts = scan.timestamp_us
+        if self._stamps:
+            dt_s = (ts - self._stamps[-1]) * 1e-6
+            if dt_s <= 0:
+                raise StreamError(
+                    f"{scan.source}: timestamp {ts} µs does not increase (previous sweep {self._stamps[-1]} µs); "
+                    "sweeps must come in time order — call reset() to start a new stream"
+                )
+            if dt_s > self.max_gap_s:
+                if self.on_gap == "reset":
+                    self.reset()
+                else:
+                    raise StreamError(
+                        f"{scan.source}: {dt_s:.3f} s since the previous sweep exceeds max_gap_s={self.max_gap_s} s; "
+                        "odometry cannot bridge it — call reset() to start a new stream "
+                        "(or use on_gap='reset')"
+                    )
+        first = not self._stamps
+        problem = sweep_problem(scan, self.min_valid_fraction)
+        if first:
+            # A stream must start from a sweep that can be matched: a degenerate first sweep is
+            # recorded at identity but never becomes the reference.
+            if problem is None:
+                self._ref_feed = self._run_first(self._sweep_input(scan))
+                self._ref_index = 0
+            self._append(np.eye(3), ts)
+            return None
+        dt_s = (ts - self._stamps[-1]) * 1e-6
+        if problem is not None:
+            return self._degenerate(problem, ts, dt_s)
+        x = self._sweep_input(scan)
+        if self._ref_feed is None:
+            # every earlier sweep of this stream was degenerate: nothing to match against yet,
+            # so this one gets the prior and becomes the reference
+            est = self._degenerate("no_reference", ts, dt_s)
+            self._ref_feed = self._run_first(x)
+            self._ref_index = len(self._poses) - 1
+            return est
+        out = self._run_pair(x)
+        if out is None:
+            return self._degenerate("nonfinite", ts, dt_s)
+        pose_ref, cov, new_ref = out
+        return self._accept(pose_ref, cov, new_ref, ts, dt_s)
+
+    # --- pieces ---------------------------------------------------------------------------
+    def _check_geometry(self, scan: RadarScan) -> None:
+        want = self.info.sweep_geometry
+        got = scan.geometry
+        bad = [
+            k for k in GEOMETRY_KEYS
+            if not np.isclose(float(got[k]), float(want[k]), rtol=1e-6, atol=1e-9)
+        ]
+        if bad:
+            raise ModelMismatchError(
+                f"{scan.source}: sweep geometry {{{', '.join(f'{k}: {got[k]}' for k in bad)}}} differs from "
+                f"model {self.path.name} ({', '.join(f'{k}: {want[k]}' for k in bad)}); use a model trained "
+                "for this radar, or resample the sweep to the model's geometry"
+            )
+
+    def _sweep_input(self, scan: RadarScan) -> np.ndarray:
+        """float32[1, W, W] Cartesian image (or [1, A, B'] reduced polar sweep) for the graph."""
+        p = self.profile
+        if p.input_kind == "polar":
+            spec = self.info.polar_input or {}
+            nb, f = int(spec.get("num_bins", scan.num_bins)), int(spec.get("bin_factor", 1))
+            power = scan.power[:, : nb * f]
+            if f > 1:  # mean over groups of f range bins, as the exporter's model was fed
+                power = power.reshape(power.shape[0], nb, f).mean(axis=2)
+            # the graph assumes row a at azimuth 2π·a/A: start from the row nearest 0 rad
+            az = scan.azimuths_rad.astype(np.float64)
+            first = int(np.argmin(np.minimum(az, 2 * np.pi - az)))
+            if first:
+                power = np.roll(power, -first, axis=0)
+            return np.ascontiguousarray(power, dtype=np.float32)[None]
+        # maps are cached by polar_to_cartesian per geometry, so a stream builds them once
+        cart = polar_to_cartesian(scan, p.resolution_m, p.width_px, near_range_m=p.near_range_m)
+        return cart[None]
+
+    def _run_first(self, x: np.ndarray) -> np.ndarray:
+        """Reference for a stream's first sweep: its state (stream form) or the input (pair form).
+
+        The stream graph has one signature, so the first state comes from a step against an
+        all-zero state whose pose is discarded (one wasted correlation per stream).
+        """
+        if self.info.form == "pair":
+            return x
+        zero_state = np.zeros(self.info.state_shape, dtype=np.float32)
+        return self._model.run({self.info.inputs[0]: x, self.info.inputs[1]: zero_state})["state"]
+
+    def _run_pair(self, x: np.ndarray):
+        """(pose, cov, new reference) matching ``x`` against the reference, or None if non-finite."""
+        if self.info.form == "pair":
+            out = self._model.run({self.info.inputs[0]: self._ref_feed, self.info.inputs[1]: x})
+            new_ref = x
+        else:
+            out = self._model.run({self.info.inputs[0]: x, self.info.inputs[1]: self._ref_feed})
+            new_ref = out["state"]
+        pose = np.asarray(out["pose"], dtype=np.float64).reshape(3)
+        cov = np.asarray(out["covariance"], dtype=np.float64).reshape(3, 3)
+        if not (np.all(np.isfinite(pose)) and np.all(np.isfinite(cov)) and np.all(np.isfinite(new_ref))):
+            return None
+        return pose, 0.5 * (cov + cov.T), new_ref
+
+    def _accept(self, pose_ref, cov, new_ref, ts, dt_s) -> Estimate:
+        """A good match of the new sweep against the reference sweep."""
+        flags = frozenset()
+        if self._ref_index == len(self._poses) - 1:
+            rel = pose_ref
+            absolute = self._poses[-1] @ se2(*rel)
+        else:  # bridged across degenerate sweeps: re-express against the previous (prior) pose
+            absolute = self._poses[self._ref_index] @ se2(*pose_ref)
+            rel = to_xyyaw(invert(self._poses[-1]) @ absolute)
+            cov = cov + self._prior_cov
+            flags = frozenset({BRIDGED})
+        self._ref_feed = new_ref
+        self._append(absolute, ts)
+        self._ref_index = len(self._poses) - 1
+        self._last_rel, self._last_dt_s = rel, dt_s
+        return Estimate(rel, cov, ts, flags)
+
+    def _degenerate(self, reason: str, ts: int, dt_s: float) -> Estimate:
+        """Constant-velocity prior with the search window's covariance; the reference stays."""
+        if self._last_rel is not None and self._last_dt_s > 0:
+            rel = self._last_rel * (dt_s / self._last_dt_s)
+        else:
+            rel = np.zeros(3)
+        self._append(self._poses[-1] @ se2(*rel), ts)
+        return Estimate(np.array(rel, dtype=np.float64), self._prior_cov.copy(), ts,
+                        frozenset({DEGENERATE, reason}))
+
+    def _append(self, absolute: np.ndarray, ts: int) -> None:
+        self._poses.append(absolute)
+        self._stamps.append(int(ts))

@@ -1,0 +1,49 @@
+"""Models shipped in the package: ``radar_odom/models/<name>.onnx`` (package data).
+
+    radar_odom.pretrained_names()      # e.g. ["cart-0.4", "cart-0.8"]
+    radar_odom.pretrained("cart-0.4")  # path of that ONNX file, for RadarOdometer
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from .errors import RadarOdomError
+
+MODELS_DIR = Path(__file__).resolve().parent / "models"
+
+
+class UnknownModelError(RadarOdomError, KeyError):
+    """A pretrained model name that is not shipped (a KeyError that reads well when printed)."""
+
+    def __str__(self) -> str:  # KeyError would print the message in quotes
+        return str(self.args[0]) if self.args else ""
+
+
+def pretrained_names(models_dir: Path | None = None) -> list[str]:
+    """Names of the shipped ONNX models, sorted (empty when none are installed)."""
+    d = Path(models_dir) if models_dir else MODELS_DIR
+    return sorted(p.stem for p in d.glob("*.onnx")) if d.is_dir() else []
+
+
+def pretrained(name: str, models_dir: Path | None = None) -> str:
+    """Path (str) of the shipped model ``name``; `UnknownModelError` (a KeyError) lists the names."""
+    d = Path(models_dir) if models_dir else MODELS_DIR
+    path = d / f"{name}.onnx"
+    if not path.is_file():
+        names = pretrained_names(d)
+        shipped = ", ".join(names) if names else "none (this installation ships no models)"
+        raise UnknownModelError(
+            f"no pretrained model {name!r}; shipped models: {shipped}. "
+            "Pass a path to an .onnx file exported with `radar-odom export` instead."
+        )
+    return str(path)
+
+
+def resolve_model(spec: str) -> str:
+    """A model argument as users give it: an existing file path, or a shipped model's name."""
+    p = Path(spec)
+    if p.suffix == ".onnx" or p.exists():
+        if not p.is_file():
+            raise RadarOdomError(f"{spec}: no such model file")
+        return str(p)
+    return pretrained(spec)

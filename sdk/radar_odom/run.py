@@ -1,0 +1,208 @@
+"""Odometry over a recorded sequence: estimates, trajectory files, a plot and the KITTI metric.
+
+`run_sequence` is what ``radar-odom run SEQ --model M`` does; `demo` reuses it on a simulated
+drive. Outputs in ``out_dir``:
+
+- ``trajectory.tum`` / ``trajectory.kitti``: absolute poses of every sweep (first = identity).
+- ``estimates.csv``: one row per step: timestamps of the sweep and its predecessor (µs, the
+  Oxford file names), the relative pose (x, y, yaw; Oxford convention), the upper triangle of
+  its covariance, and the flags ("degenerate", "bridged", ...).
+- ``trajectory.png``: estimate vs ground truth (when there is one), drawn as a map from above.
+  Frames are x forward, y right, z down, so the plot shows (x, −y) and −yaw (z up).
+"""
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ._progress import progress
+from .odometer import Estimate, RadarOdometer
+
+ESTIMATE_COLUMNS = (
+    "timestamp_us", "prev_timestamp_us", "x_m", "y_m", "yaw_rad",
+    "cov_xx", "cov_xy", "cov_xyaw", "cov_yy", "cov_yyaw", "cov_yawyaw", "flags",
+)
+KITTI_STEP = 4  # frames between segment starts at 4 Hz (radar convention; devkit uses 10)
+KITTI_POOLING = "segments"
+
+
+@dataclass
+class RunResult:
+    """What `run_sequence` produced."""
+
+    poses: np.ndarray  # float64[N, 3, 3] estimated absolute poses
+    timestamps_us: np.ndarray  # int64[N]
+    estimates: list  # N − 1 `Estimate`s
+    gt_poses: np.ndarray | None  # float64[N, 3, 3] ground truth, first = identity, or None
+    metrics: dict | None = None  # KITTI metrics, or None
+    step_errors: dict | None = None  # mean per-step relative errors when KITTI has no segment
+    files: dict = field(default_factory=dict)
+    seconds_per_step: float = float("nan")
+
+    @property
+    def num_degenerate(self) -> int:
+        return sum(e.degenerate for e in self.estimates)
+
+
+def write_estimates_csv(path, estimates: list[Estimate], prev_timestamps_us) -> Path:
+    """``estimates.csv`` (see the module docstring for the columns)."""
+    path = Path(path)
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(ESTIMATE_COLUMNS)
+        for est, prev in zip(estimates, prev_timestamps_us):
+            c = est.covariance
+            w.writerow([
+                est.timestamp_us, int(prev), *(f"{v:.9g}" for v in est.pose),
+                *(f"{v:.9g}" for v in (c[0, 0], c[0, 1], c[0, 2], c[1, 1], c[1, 2], c[2, 2])),
+                "|".join(sorted(est.flags)),
+            ])
+    return path
+
+
+def read_estimates_csv(path) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[frozenset]]:
+    """(timestamps_us int64[M], poses float64[M, 3], covariances float64[M, 3, 3], flags)."""
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    ts = np.array([int(r["timestamp_us"]) for r in rows], dtype=np.int64)
+    poses = np.array([[float(r[k]) for k in ("x_m", "y_m", "yaw_rad")] for r in rows]).reshape(-1, 3)
+    covs = np.zeros((len(rows), 3, 3))
+    for i, r in enumerate(rows):
+        for (a, b), k in zip(((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)), ESTIMATE_COLUMNS[5:11]):
+            covs[i, a, b] = covs[i, b, a] = float(r[k])
+    flags = [frozenset(x for x in r["flags"].split("|") if x) for r in rows]
+    return ts, poses, covs, flags
+
+
+def plot_trajectory(path, est_poses: np.ndarray, gt_poses: np.ndarray | None, timestamps_us, title: str) -> Path:
+    """PNG of the path seen from above (x, −y) and heading (−yaw) over time, estimate vs truth."""
+    try:
+        import matplotlib
+    except ImportError:
+        from .errors import MissingExtraError
+
+        raise MissingExtraError("matplotlib", "cli") from None
+    matplotlib.use("Agg")  # files only: never needs a display
+    import matplotlib.pyplot as plt
+
+    from .se2 import to_xyyaw
+
+    t_s = (np.asarray(timestamps_us) - timestamps_us[0]) * 1e-6
+    fig, (ax_map, ax_yaw) = plt.subplots(1, 2, figsize=(12, 5.5), gridspec_kw={"width_ratios": [3, 2]})
+    curves = [("estimate", est_poses, "tab:blue")]
+    if gt_poses is not None:
+        curves.insert(0, ("ground truth", gt_poses, "k"))
+    for label, poses, colour in curves:
+        xyyaw = to_xyyaw(poses)
+        ax_map.plot(xyyaw[:, 0], -xyyaw[:, 1], color=colour, label=label, lw=1.5)
+        ax_yaw.plot(t_s, np.degrees(-np.unwrap(xyyaw[:, 2])), color=colour, label=label, lw=1.5)
+    ax_map.plot([0], [0], "o", color="tab:green", label="start")
+    ax_map.set_aspect("equal", adjustable="datalim")
+    ax_map.set_xlabel("x (m, forward at start)")
+    ax_map.set_ylabel("−y (m, left at start)")
+    ax_map.legend(loc="best")
+    ax_map.grid(alpha=0.3)
+    ax_yaw.set_xlabel("time (s)")
+    ax_yaw.set_ylabel("heading −yaw (deg)")
+    ax_yaw.grid(alpha=0.3)
+    fig.suptitle(f"{title}\nmap view from above (z up): y and yaw negated from the x-fwd/y-right/z-down frame")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
+def evaluate(gt_poses: np.ndarray, est_poses: np.ndarray, estimates=None) -> tuple[dict | None, dict]:
+    """(KITTI metrics, or None when no segment fits; per-step relative errors).
+
+    The per-step summary also holds the mean Mahalanobis d² of the non-degenerate estimates
+    (≈ 3 when the covariance is calibrated) when ``estimates`` are given. Steps without
+    ground truth (NaN) are left out of the per-step errors; any of them voids the KITTI metric.
+    """
+    from .metrics import kitti_metrics, mahalanobis_sq, relative_pose_errors
+    from .se2 import relative_from_absolute
+
+    gt_rel = relative_from_absolute(gt_poses)
+    est_rel = relative_from_absolute(est_poses)
+    ok = np.all(np.isfinite(gt_rel), axis=1)
+    errors = relative_pose_errors(gt_rel[ok], est_rel[ok])
+    step_errors = {k: v for k, v in errors.items() if not isinstance(v, np.ndarray)}
+    if estimates is not None and len(estimates) == len(gt_rel):
+        good = ok & np.array([not e.degenerate for e in estimates], dtype=bool)
+        if good.any():
+            covs = np.stack([e.covariance for e in estimates])[good]
+            try:
+                d2 = mahalanobis_sq(est_rel[good] - gt_rel[good], covs)
+                step_errors["mean_mahalanobis_d2"] = float(np.mean(d2))
+            except ValueError:  # a singular covariance (a hard-argmax-like β): no d²
+                pass
+    metrics = None
+    if ok.all():
+        try:
+            metrics = kitti_metrics(gt_poses, est_poses, step=KITTI_STEP, pooling=KITTI_POOLING)
+        except ValueError:  # too short for even the shortest segment
+            metrics = None
+    return metrics, step_errors
+
+
+def format_metrics(metrics: dict | None, step_errors: dict | None) -> str:
+    """Human-readable lines for the metrics (always naming step and pooling)."""
+    lines = []
+    if metrics is not None:
+        lines.append(
+            f"KITTI odometry (step {metrics.get('step', KITTI_STEP)}, pooling "
+            f"{metrics.get('pooling', KITTI_POOLING)}, {metrics.get('num_segments', '?')} segments): "
+            f"translation {metrics['translation_percent']:.3f} %, rotation {metrics['rotation_deg_per_m']:.5f} deg/m"
+        )
+    elif step_errors is not None:
+        lines.append("KITTI odometry: drive too short for a 100 m segment; per-step relative errors instead")
+    if step_errors is not None:
+        lines.append("per step: " + ", ".join(f"{k} {v:.4g}" for k, v in step_errors.items()
+                                              if isinstance(v, (int, float))))
+    return "\n".join(lines)
+
+
+def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float = 1.0, show_progress=True,
+                 plot=True, title=None) -> RunResult:
+    """Run ``model`` (path or `RadarOdometer`) over the recording ``seq_dir``; write outputs."""
+    import time
+
+    from .formats import read_sequence
+    from .trajectory import write_kitti, write_tum
+
+    seq = read_sequence(seq_dir)
+    odo = model if isinstance(model, RadarOdometer) else RadarOdometer(model, threads=threads, max_gap_s=max_gap_s)
+    odo.reset()
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    estimates: list[Estimate] = []
+    prev_ts: list[int] = []
+    last_ts = None
+    t0 = time.perf_counter()
+    for frame in progress(seq, total=len(seq), desc=f"odometry {Path(seq_dir).name}", unit="sweep",
+                          disable=not show_progress):
+        est = odo.step(frame.scan)
+        if est is not None:
+            estimates.append(est)
+            prev_ts.append(last_ts)
+        last_ts = frame.scan.timestamp_us
+    wall = time.perf_counter() - t0
+    traj = odo.trajectory
+    result = RunResult(traj.poses, traj.timestamps_us, estimates, None,
+                       seconds_per_step=wall / max(len(traj), 1))
+    result.files["tum"] = write_tum(out_dir / "trajectory.tum", traj.timestamps_us, traj.poses)
+    result.files["kitti"] = write_kitti(out_dir / "trajectory.kitti", traj.poses)
+    result.files["estimates"] = write_estimates_csv(out_dir / "estimates.csv", estimates, prev_ts)
+    gt = seq.gt_absolute()
+    if gt is not None and len(gt) == len(traj):
+        result.gt_poses = gt
+        result.metrics, result.step_errors = evaluate(gt, traj.poses, estimates)
+    if plot:
+        result.files["plot"] = plot_trajectory(
+            out_dir / "trajectory.png", traj.poses, result.gt_poses, traj.timestamps_us,
+            title or f"{Path(seq_dir).name} — {Path(str(odo.path)).name}",
+        )
+    return result

@@ -1,0 +1,110 @@
+"""`radar-odom run` and `radar-odom demo` end to end on a tiny simulated drive, and their outputs."""
+import numpy as np
+import pytest
+
+from radar_odom.cli import main
+from radar_odom.formats import read_sequence
+from radar_odom.profiles import GridProfile
+from radar_odom.run import evaluate, format_metrics, read_estimates_csv
+from radar_odom.se2 import chain_relative
+from radar_odom.trajectory import read_kitti, read_tum
+
+# a raw-scan (untrained) model on a coarse grid for the simulator's CTS350-X sweeps
+PROFILE = GridProfile("cli-test", resolution_m=1.6, width_px=64, max_translation_m=4.8,
+                      rotation_range_rad=0.1, rotation_step_rad=0.05, unet_base_channels=4, unet_depth=3)
+FRAMES = 6
+
+
+@pytest.fixture(scope="module")
+def model_path(tmp_path_factory):
+    pytest.importorskip("torch")
+    from radar_odom_export.model import MaskedCorrelator
+    from radar_odom_export.onnx_export import export_model
+
+    path = tmp_path_factory.mktemp("model") / "raw.onnx"
+    export_model(MaskedCorrelator(PROFILE, masking="raw"), path, verify=False)
+    return path
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory):
+    from radar_odom.sim import write_drive
+
+    return write_drive(tmp_path_factory.mktemp("sim") / "drive", seed=11, frames=FRAMES, progress=False)
+
+
+def test_run_writes_outputs_and_prints_metrics(model_path, drive, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["run", str(drive), "--model", str(model_path), "-o", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert f"{FRAMES} sweeps, {FRAMES - 1} estimates" in printed
+    # 6 sweeps are far shorter than a 100 m KITTI segment: per-step errors are printed instead
+    assert "too short" in printed and "mean_translation_m" in printed
+    for name in ("trajectory.tum", "trajectory.kitti", "estimates.csv", "trajectory.png"):
+        assert (out / name).stat().st_size > 0, name
+    seq = read_sequence(drive)
+    ts, poses = read_tum(out / "trajectory.tum")
+    assert np.array_equal(ts, seq.timestamps_us)
+    kitti = read_kitti(out / "trajectory.kitti")
+    assert kitti.shape == (FRAMES, 3, 3)
+    np.testing.assert_allclose(poses, kitti, atol=1e-6)
+    est_ts, rel, covs, flags = read_estimates_csv(out / "estimates.csv")
+    assert np.array_equal(est_ts, seq.timestamps_us[1:])
+    # the files agree with each other: chaining the CSV's relative poses gives the KITTI file
+    np.testing.assert_allclose(chain_relative(rel), kitti, atol=1e-6)
+    assert np.all(np.isfinite(covs)) and np.allclose(covs, np.transpose(covs, (0, 2, 1)))
+    # a raw-scan model on 1.6 m cells still gets the simulated motion to about a cell
+    err = rel - seq.gt_relative
+    assert np.max(np.abs(err[:, :2])) < 1.6 and not any(flags)
+    png = (out / "trajectory.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_run_accepts_a_model_name_and_lists_names_when_unknown(drive, tmp_path, capsys):
+    assert main(["run", str(drive), "--model", "no-such-model", "-o", str(tmp_path)]) == 1
+    err = capsys.readouterr().err
+    assert "no pretrained model 'no-such-model'" in err and "shipped models:" in err
+
+
+def test_run_without_ground_truth_says_so(model_path, drive, tmp_path, capsys):
+    import shutil
+
+    bare = tmp_path / "bare"
+    shutil.copytree(drive / "radar", bare / "radar")
+    assert main(["run", str(bare), "--model", str(model_path), "-o", str(tmp_path / "o"), "--no-plot"]) == 0
+    printed = capsys.readouterr().out
+    assert "no ground truth" in printed
+    assert not (tmp_path / "o" / "trajectory.png").exists()
+
+
+def test_evaluate_gives_kitti_metrics_on_a_long_enough_drive():
+    # 120 steps of 1.25 m (150 m), estimate 1 % longer. A 100 m segment ends at the first frame
+    # *beyond* 100 m: 81 steps = 101.25 m, so its error is 1.0125 m over the nominal 100 m.
+    rel = np.tile([1.25, 0.0, 0.0], (120, 1))
+    gt = chain_relative(rel)
+    est = chain_relative(rel * [1.01, 1.0, 1.0])
+    metrics, steps = evaluate(gt, est)
+    assert metrics is not None and metrics["step"] == 4 and metrics["pooling"] == "segments"
+    assert metrics["translation_percent"] == pytest.approx(1.0125, rel=1e-9)
+    assert metrics["rotation_deg_per_m"] == pytest.approx(0.0, abs=1e-9)
+    assert steps["mean_translation_m"] == pytest.approx(0.0125)
+    text = format_metrics(metrics, steps)
+    assert "step 4" in text and "pooling segments" in text and "1.013 %" in text
+    short_metrics, _ = evaluate(gt[:20], est[:20])
+    assert short_metrics is None
+
+
+def test_demo_runs_end_to_end_with_a_given_model(model_path, tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert main(["demo", "--frames", "5", "--model", str(model_path), "-o", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "simulated 5 sweeps" in printed and "4 estimates" in printed
+    assert (out / "trajectory.png").is_file() and (out / "drive" / "radar").is_dir()
+
+
+def test_demo_without_shipped_models_is_a_clear_error(tmp_path, capsys, monkeypatch):
+    import radar_odom.pretrained as pretrained
+
+    monkeypatch.setattr(pretrained, "MODELS_DIR", tmp_path / "none")
+    assert main(["demo", "--frames", "3", "-o", str(tmp_path / "d")]) == 1
+    assert "ships no pretrained models" in capsys.readouterr().err
