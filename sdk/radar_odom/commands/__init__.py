@@ -11,4 +11,5 @@ COMMANDS: list[str] = [
     "train",
     "calibrate",
     "simulate",
+    "profile",
 ]
