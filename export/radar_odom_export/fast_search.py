@@ -579,7 +579,7 @@ class FastStreamStep(nn.Module):
         return low.unsqueeze(1) + steps
 
     def forward(self, cur: torch.Tensor, prev_state: torch.Tensor, cur_mask=None):
-        features = self.model._single_features(cur, cur_mask)  # [B, W, W], support disc cut
+        features = self.model.sweep_features(cur, cur_mask)  # [B, W, W], support disc cut
         spec = self.spectrum(features)
         new_state = self.spectrum.to_natural(spec)
         indices = self.band_indices(prev_state, new_state)  # [B, Kb]

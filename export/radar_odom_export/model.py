@@ -190,7 +190,8 @@ class MaskedCorrelator(nn.Module):
         m_prev, m_cur = self._masks(prev, cur, prev_mask, cur_mask)
         return self._to_features(prev, m_prev), self._to_features(cur, m_cur)
 
-    def _single_features(self, sweep, mask=None) -> torch.Tensor:
+    def sweep_features(self, sweep, mask=None) -> torch.Tensor:
+        """``S = M ⊙ Z`` of one sweep per batch item (single mode), Cartesian float[B, W, W]."""
         if self.masking == "external":
             if mask is None:
                 raise ValueError("masking='external' needs the sweep's mask")
@@ -217,7 +218,7 @@ class MaskedCorrelator(nn.Module):
         """The state a stream keeps after its first sweep ``cur``."""
         if self.dual:
             return cur
-        return self.correlation.spectrum(self._single_features(cur, cur_mask))
+        return self.correlation.spectrum(self.sweep_features(cur, cur_mask))
 
     def stream_step(self, cur, prev_state, cur_mask=None):
         """(pose, covariance, new_state) for sweep ``cur`` against the previous step's state.
@@ -231,6 +232,6 @@ class MaskedCorrelator(nn.Module):
             pose, cov = self(prev_state, cur)
             return pose, cov, cur
         corr = self.correlation
-        spectra = corr.spectrum(self.rotator(self._single_features(cur, cur_mask)))
+        spectra = corr.spectrum(self.rotator(self.sweep_features(cur, cur_mask)))
         pose, cov = self.pose_from_volume(corr.correlate(prev_state, spectra))
         return pose, cov, spectra[:, self.rotator.zero_index]

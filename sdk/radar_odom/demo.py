@@ -8,23 +8,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from .pretrained import default_model_name
+
 DEFAULT_FRAMES = 120  # 30 s at 4 Hz: long enough for 100 m KITTI segments at urban speeds
 DEFAULT_SEED = 9005  # held out (training 1000-2999); a drive with a 84° turn and a stop
-DEFAULT_MODEL = "cart-0.4"
-
-
-def default_model_name() -> str:
-    """``cart-0.4`` if shipped, else the first shipped model; `RadarOdomError` if none is."""
-    from .errors import RadarOdomError
-    from .pretrained import pretrained_names
-
-    names = pretrained_names()
-    if not names:
-        raise RadarOdomError(
-            "this installation ships no pretrained models (radar_odom/models/*.onnx is empty); "
-            "pass --model path/to/model.onnx exported with `radar-odom export`"
-        )
-    return DEFAULT_MODEL if DEFAULT_MODEL in names else names[0]
 
 
 def run_demo(frames: int = DEFAULT_FRAMES, model: str | None = None, seed: int = DEFAULT_SEED,

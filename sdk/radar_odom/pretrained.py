@@ -10,6 +10,7 @@ from pathlib import Path
 from .errors import RadarOdomError
 
 MODELS_DIR = Path(__file__).resolve().parent / "models"
+DEFAULT_MODEL = "cart-0.4"  # what `radar-odom demo` and `run` use without --model
 
 
 class UnknownModelError(RadarOdomError, KeyError):
@@ -47,3 +48,14 @@ def resolve_model(spec: str) -> str:
             raise RadarOdomError(f"{spec}: no such model file")
         return str(p)
     return pretrained(spec)
+
+
+def default_model_name() -> str:
+    """``cart-0.4`` if shipped, else the first shipped model; `RadarOdomError` if none is."""
+    names = pretrained_names()
+    if not names:
+        raise RadarOdomError(
+            "this installation ships no pretrained models (radar_odom/models/*.onnx is empty); "
+            "pass --model path/to/model.onnx exported with `radar-odom export`"
+        )
+    return DEFAULT_MODEL if DEFAULT_MODEL in names else names[0]

@@ -1,4 +1,4 @@
-"""``radar-odom run SEQ --model M|NAME [-o OUTDIR]``: odometry over a recorded sequence."""
+"""``radar-odom run SEQ [--model M|NAME] [-o OUTDIR]``: odometry over a recorded sequence."""
 from __future__ import annotations
 
 HELP = "odometry over a recording (Oxford layout, Boreas, MulRan); writes trajectories, estimates and a plot"
@@ -10,8 +10,9 @@ def register(subparsers) -> None:
         description=HELP + ". Prints the KITTI odometry metric when the recording has ground truth."
     )
     p.add_argument("sequence", help="recording folder (e.g. SEQ with SEQ/radar/*.png)")
-    p.add_argument("-m", "--model", required=True,
-                   help="exported .onnx file, or the name of a shipped model (radar_odom.pretrained_names())")
+    p.add_argument("-m", "--model", default=None,
+                   help="exported .onnx file, or the name of a shipped model (radar_odom.pretrained_names()); "
+                        "default: cart-0.4 if shipped, else the first shipped model")
     p.add_argument("-o", "--output", default=None, help="output folder (default: ./run-<SEQ name>)")
     p.add_argument("--threads", type=int, default=None, help="onnxruntime threads (default: physical cores)")
     p.add_argument("--max-gap-s", type=float, default=1.0,
@@ -23,10 +24,10 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from pathlib import Path
 
-    from ..pretrained import resolve_model
+    from ..pretrained import default_model_name, resolve_model
     from ..run import format_metrics, run_sequence
 
-    model = resolve_model(args.model)
+    model = resolve_model(args.model or default_model_name())
     out = Path(args.output) if args.output else Path(f"run-{Path(args.sequence).resolve().name}")
     result = run_sequence(args.sequence, model, out, threads=args.threads, max_gap_s=args.max_gap_s,
                           plot=not args.no_plot)
