@@ -270,3 +270,19 @@ def test_huge_correlation_values_stay_finite():
     assert torch.isfinite(mean).all() and torch.isfinite(cov).all()
     np.testing.assert_allclose(mean[0].numpy(), [0.0, 1.0, -0.1], atol=1e-6)
     np.testing.assert_allclose(cov[0].numpy(), 0.0, atol=1e-9)
+
+
+def test_covariance_floor_is_the_cell_quantisation_variance_on_a_one_cell_volume():
+    from radar_odom_export.model import MaskedCorrelator
+
+    p = GridProfile("floor", resolution_m=0.5, width_px=32, max_translation_m=1.5, rotation_range_rad=0.02,
+                    rotation_step_rad=0.01, beta_pose=1.0, beta_cov=1.0, unet_depth=2)
+    model = MaskedCorrelator(p, masking="raw")
+    vol = torch.zeros(1, p.num_rotations, p.num_translations, p.num_translations)
+    vol[0, 1, 3, 4] = 1e4  # every weight on one cell: eq. 3 alone gives Σ = 0
+    pose, cov = model.pose_from_volume(vol)
+    torch.testing.assert_close(pose[0], torch.tensor([0.0, 0.5, -0.01]))  # yaws -0.02..0.02
+    expected = torch.diag(torch.tensor([0.25 / 12, 0.25 / 12, 1e-4 / 12]))
+    torch.testing.assert_close(cov[0], expected)
+    _, cov0 = MaskedCorrelator(p.with_(cov_floor_cells=0.0), masking="raw").pose_from_volume(vol)
+    assert torch.count_nonzero(cov0) == 0

@@ -188,3 +188,11 @@ def test_mahalanobis_by_hand_and_chi_square_mean():
     assert M.mean_mahalanobis_sq(e, np.broadcast_to(4 * sigma, (20000, 3, 3))) == pytest.approx(0.75, abs=0.03)
     with pytest.raises(ValueError, match="singular"):
         M.mahalanobis_sq(err, np.zeros((1, 3, 3)))
+
+
+def test_mahalanobis_jitter_makes_a_singular_covariance_usable():
+    # a one-cell soft-argmax: Σ = 0; the jitter (a thousandth of a cell) sets the scale
+    jitter = M.covariance_jitter(resolution_m=0.4, rotation_step_rad=0.01)
+    np.testing.assert_allclose(jitter, [(4e-4) ** 2, (4e-4) ** 2, (1e-5) ** 2])
+    err = np.array([[4e-4, 0.0, 1e-5]])
+    assert M.mahalanobis_sq(err, np.zeros((1, 3, 3)), jitter)[0] == pytest.approx(2.0, rel=1e-9)

@@ -24,6 +24,7 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
+from radar_odom import metrics
 from radar_odom.errors import RadarOdomError
 from radar_odom.profiles import GridProfile
 
@@ -31,7 +32,7 @@ from .softargmax import candidate_weights, weighted_covariance, weighted_mean
 
 TARGET_D2 = 3.0
 BAND = (2.7, 3.3)
-JITTER_CELLS = 1e-3
+JITTER_CELLS = metrics.JITTER_CELLS
 
 
 class CalibrationError(RadarOdomError, RuntimeError):
@@ -54,8 +55,7 @@ class CalibrationResult:
 # ----------------------------------------------------------------------------- maths
 def covariance_jitter(profile: GridProfile) -> np.ndarray:
     """float64[3]: the diagonal added to Σ̄ before inversion (module docstring)."""
-    cell = np.array([profile.resolution_m, profile.resolution_m, profile.rotation_step_rad])
-    return (JITTER_CELLS * cell) ** 2
+    return metrics.covariance_jitter(profile.resolution_m, profile.rotation_step_rad)
 
 
 def pose_errors(gt_xyyaw: np.ndarray, mean_xyyaw: np.ndarray) -> np.ndarray:
@@ -66,13 +66,9 @@ def pose_errors(gt_xyyaw: np.ndarray, mean_xyyaw: np.ndarray) -> np.ndarray:
 
 
 def mahalanobis_sq(err: np.ndarray, cov: np.ndarray, jitter_diag: np.ndarray | None = None) -> np.ndarray:
-    """float64[P]: ``eᵀ (Σ + diag(jitter))⁻¹ e`` for errors [P, 3] and covariances [P, 3, 3]."""
-    cov = np.asarray(cov, np.float64)
-    if jitter_diag is not None:
-        cov = cov + np.diag(np.asarray(jitter_diag, np.float64))
-    err = np.asarray(err, np.float64)
-    sol = np.linalg.solve(cov, err[..., None])[..., 0]
-    return np.einsum("pi,pi->p", err, sol)
+    """float64[P]: ``eᵀ (Σ + diag(jitter))⁻¹ e`` for errors [P, 3] and covariances [P, 3, 3]
+    (`radar_odom.metrics.mahalanobis_sq`, the one the runtime reports)."""
+    return metrics.mahalanobis_sq(err, cov, jitter_diag)
 
 
 # ----------------------------------------------------------------------------- volumes
@@ -109,6 +105,7 @@ class D2Curve:
         self.flat = candidates.reshape(-1, 3).to(torch.float64)
         self.chunk = chunk
         self.jitter = covariance_jitter(profile)
+        self.floor = np.diag(profile.covariance_floor)  # as MaskedCorrelator.pose_from_volume adds
         means = [weighted_mean(candidate_weights(v.double(), profile.beta_pose), self.flat)
                  for v in volumes.split(chunk)]
         self.mean = torch.cat(means).numpy()
@@ -116,7 +113,7 @@ class D2Curve:
 
     def covariances(self, beta: float) -> np.ndarray:
         covs = [weighted_covariance(candidate_weights(v.double(), beta), self.flat) for v in self.volumes.split(self.chunk)]
-        return torch.cat(covs).numpy()
+        return torch.cat(covs).numpy() + self.floor
 
     def d2(self, beta: float) -> np.ndarray:
         return mahalanobis_sq(self.err, self.covariances(beta), self.jitter)

@@ -611,7 +611,7 @@ class FastStreamStep(nn.Module):
         p = self.profile
         pose, _ = band_moments(candidate_weights(volume, p.beta_pose).reshape(volume.shape), self.offsets_m, yaws)
         _, cov = band_moments(candidate_weights(volume, p.beta_cov).reshape(volume.shape), self.offsets_m, yaws)
-        return pose, cov
+        return pose, cov + self.model.cov_floor
 
 
 def band_moments(weights: torch.Tensor, offsets_m: torch.Tensor, yaws: torch.Tensor):

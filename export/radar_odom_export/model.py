@@ -146,6 +146,7 @@ class MaskedCorrelator(nn.Module):
         self.register_buffer("candidates", candidate_poses(profile), persistent=False)
         self.register_buffer("support", support_disc(profile.width_px, profile.translation_cells),
                              persistent=False)
+        self.register_buffer("cov_floor", torch.diag(torch.tensor(profile.covariance_floor)), persistent=False)
 
     # ------------------------------------------------------------------ masks and features
     def mask(self, x: torch.Tensor) -> torch.Tensor:
@@ -206,8 +207,10 @@ class MaskedCorrelator(nn.Module):
         return corr.correlate(corr.spectrum(s_prev), corr.spectrum(self.rotator(s_cur)))
 
     def pose_from_volume(self, volume: torch.Tensor):
-        """(pose [B, 3], covariance [B, 3, 3]) by soft-argmax with the profile's two βs."""
-        return soft_argmax(volume, self.candidates, self.profile.beta_pose, self.profile.beta_cov)
+        """(pose [B, 3], covariance [B, 3, 3]) by soft-argmax with the profile's two βs; the
+        covariance includes the profile's quantisation floor (`GridProfile.covariance_floor`)."""
+        pose, cov = soft_argmax(volume, self.candidates, self.profile.beta_pose, self.profile.beta_cov)
+        return pose, cov + self.cov_floor
 
     def forward(self, prev, cur, prev_mask=None, cur_mask=None):
         """(pose float[B, 3], covariance float[B, 3, 3]) of ``cur``'s frame in ``prev``'s."""

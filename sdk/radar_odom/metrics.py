@@ -186,9 +186,21 @@ def relative_pose_errors(gt_rel, est_rel) -> dict:
     }
 
 
-def mahalanobis_sq(err, cov) -> np.ndarray:
-    """float64[N]: d² = eᵀ Σ⁻¹ e per row, for errors e [N, 3] (x m, y m, yaw rad; the yaw
-    component is wrapped to (−π, π]) and covariances Σ [N, 3, 3] over the same (x, y, yaw).
+# a soft-argmax at a high β concentrates on one cell and its covariance can be singular; d² is
+# computed with this diagonal added, a thousandth of a grid cell (rotation step for yaw)
+JITTER_CELLS = 1e-3
+
+
+def covariance_jitter(resolution_m: float, rotation_step_rad: float) -> np.ndarray:
+    """float64[3]: the diagonal ``(JITTER_CELLS · cell)²`` added to Σ before inversion (x, y, yaw)."""
+    cell = np.array([resolution_m, resolution_m, rotation_step_rad], dtype=np.float64)
+    return (JITTER_CELLS * cell) ** 2
+
+
+def mahalanobis_sq(err, cov, jitter_diag=None) -> np.ndarray:
+    """float64[N]: d² = eᵀ (Σ + diag(jitter))⁻¹ e per row, for errors e [N, 3] (x m, y m, yaw
+    rad; the yaw component is wrapped to (−π, π]) and covariances Σ [N, 3, 3] over the same
+    (x, y, yaw). ``jitter_diag`` (float[3], e.g. `covariance_jitter`) regularises singular Σ.
 
     For a calibrated Gaussian estimate d² follows χ² with 3 degrees of freedom: mean 3.
     """
@@ -199,6 +211,8 @@ def mahalanobis_sq(err, cov) -> np.ndarray:
         raise ValueError(f"cov must have shape ({len(e)}, 3, 3) to match err, got {c.shape}")
     if not np.all(np.isfinite(c)):
         raise ValueError("cov holds NaN/inf")
+    if jitter_diag is not None:
+        c = c + np.diag(np.asarray(jitter_diag, dtype=np.float64))
     try:
         sol = np.linalg.solve(c, e[:, :, None])[:, :, 0]
     except np.linalg.LinAlgError as exc:

@@ -41,6 +41,11 @@ class GridProfile:
     # bilinearly: the mask is smooth at the scale of objects (cars, walls), so 0.2 and 0.4 m/px
     # models mask at 0.8 m/px and the U-Net costs the same at every resolution.
     mask_downsample: int = 1
+    # The soft-argmax covariance is a moment of a distribution over grid cells: when β·C puts
+    # its weight on one cell it tends to 0, although the true pose is anywhere within that cell.
+    # This many cells' uniform quantisation variance, (c·cell)²/12 per axis, is added to it
+    # (`covariance_floor`); 0 gives the paper's eq. 3 alone.
+    cov_floor_cells: float = 1.0
 
     def __post_init__(self):
         if self.resolution_m <= 0 or self.width_px < 16:
@@ -75,6 +80,14 @@ class GridProfile:
     @property
     def num_rotations(self) -> int:
         return len(self.rotations_rad)
+
+    @property
+    def covariance_floor(self) -> tuple[float, float, float]:
+        """Variances (m², m², rad²) added to the covariance's diagonal: ``(c·cell)² / 12`` for
+        the x and y cell (``resolution_m``) and the yaw step, c = ``cov_floor_cells``."""
+        c = self.cov_floor_cells
+        r = (c * self.resolution_m) ** 2 / 12.0
+        return (r, r, (c * self.rotation_step_rad) ** 2 / 12.0)
 
     @property
     def extent_m(self) -> float:

@@ -115,11 +115,13 @@ def plot_trajectory(path, est_poses: np.ndarray, gt_poses: np.ndarray | None, ti
     return Path(path)
 
 
-def evaluate(gt_poses: np.ndarray, est_poses: np.ndarray, estimates=None) -> tuple[dict | None, dict]:
+def evaluate(gt_poses: np.ndarray, est_poses: np.ndarray, estimates=None,
+             jitter_diag=None) -> tuple[dict | None, dict]:
     """(KITTI metrics, or None when no segment fits; per-step relative errors).
 
     The per-step summary also holds the mean Mahalanobis d² of the non-degenerate estimates
-    (≈ 3 when the covariance is calibrated) when ``estimates`` are given. Steps without
+    (≈ 3 when the covariance is calibrated) when ``estimates`` are given, computed with
+    ``jitter_diag`` added to each covariance as in calibration (`metrics.covariance_jitter`). Steps without
     ground truth (NaN) are left out of the per-step errors; any of them voids the KITTI metric.
     """
     from .metrics import kitti_metrics, mahalanobis_sq, relative_pose_errors
@@ -135,7 +137,7 @@ def evaluate(gt_poses: np.ndarray, est_poses: np.ndarray, estimates=None) -> tup
         if good.any():
             covs = np.stack([e.covariance for e in estimates])[good]
             try:
-                d2 = mahalanobis_sq(est_rel[good] - gt_rel[good], covs)
+                d2 = mahalanobis_sq(est_rel[good] - gt_rel[good], covs, jitter_diag)
                 step_errors["mean_mahalanobis_d2"] = float(np.mean(d2))
             except ValueError:  # a singular covariance (a hard-argmax-like β): no d²
                 pass
@@ -171,6 +173,7 @@ def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float = 1.
     import time
 
     from .formats import read_sequence
+    from .metrics import covariance_jitter
     from .trajectory import write_kitti, write_tum
 
     seq = read_sequence(seq_dir)
@@ -199,7 +202,9 @@ def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float = 1.
     gt = seq.gt_absolute()
     if gt is not None and len(gt) == len(traj):
         result.gt_poses = gt
-        result.metrics, result.step_errors = evaluate(gt, traj.poses, estimates)
+        p = odo.info.profile
+        result.metrics, result.step_errors = evaluate(
+            gt, traj.poses, estimates, covariance_jitter(p.resolution_m, p.rotation_step_rad))
     if plot:
         result.files["plot"] = plot_trajectory(
             out_dir / "trajectory.png", traj.poses, result.gt_poses, traj.timestamps_us,

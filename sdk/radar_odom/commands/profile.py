@@ -27,7 +27,7 @@ def register(subparsers) -> None:
                         "name, or else an untrained export")
     p.add_argument("--search", choices=("fast", "exhaustive"), default="fast",
                    help="rotation search of the untrained exports: coarse-to-fine, or every yaw candidate")
-    p.add_argument("--threads", type=int, default=None, help="onnxruntime threads (default: physical cores)")
+    p.add_argument("--threads", type=int, default=None, help="onnxruntime threads (default: physical cores)%(default).0s")
     p.add_argument("--steps", type=int, default=200, help="timed stream steps per model")
     p.add_argument("--warmup", type=int, default=20, help="untimed steps first")
     p.add_argument("--reference-steps", type=int, default=30,
