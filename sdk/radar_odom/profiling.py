@@ -276,7 +276,9 @@ class FFTReference:
         pose = w @ cand
         wc = weights(self.profile.beta_cov)
         centred = cand - wc @ cand
-        return pose, (centred * wc[:, None]).T @ centred
+        # the same quantisation floor the graph adds (GridProfile.covariance_floor)
+        cov = (centred * wc[:, None]).T @ centred + np.diag(self.profile.covariance_floor)
+        return pose, cov
 
 
 def state_to_image(state: np.ndarray, width_px: int) -> np.ndarray:
