@@ -474,8 +474,8 @@ def train(cfg: TrainConfig, train_drives: Sequence[Drive], val_drives: Sequence[
                 best_val, best_epoch = val, epoch + 1
         if d.main:
             print(f"epoch {epoch + 1}: train {history[-1]['train_loss']:.4g}  val {stats['loss']:.4g}  "
-                  f"val pose mse {stats['pose_mse']:.4g} cells²  "
-                  f"mask mean {stats['mask_mean']:.3f}"
+                  + (f"val pose mse {stats['pose_mse']:.4g} cells²  " if math.isfinite(stats["pose_mse"]) else "")
+                  + f"mask mean {stats['mask_mean']:.3f}"
                   f"{'  (best)' if improved else ''}  [{wall / 60:.1f} min]", file=sys.stderr)
             record.update(best_val=best_val, best_epoch=best_epoch, epochs_run=epoch + 1, steps=step,
                           wall_s=wall)
