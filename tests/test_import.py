@@ -19,3 +19,16 @@ def test_cli_help_lists_commands():
         [sys.executable, "-m", "radar_odom", "--help"], capture_output=True, text=True, check=True
     ).stdout
     assert "radar-odom" in out
+
+
+def test_pretrained_stays_the_function_whatever_is_imported_first():
+    """`radar_odom.pretrained` is both a submodule and the public function; the function must win."""
+    code = (
+        "import radar_odom\n"
+        "radar_odom.pretrained_names()\n"
+        "import radar_odom.pretrained, radar_odom.odometer, radar_odom.demo\n"
+        "assert callable(radar_odom.pretrained), radar_odom.pretrained\n"
+        "from radar_odom import pretrained\n"
+        "assert callable(pretrained)\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)

@@ -1,0 +1,65 @@
+"""The shipped models (package data) keep the export contract and match the profile registry."""
+import json
+
+import numpy as np
+import pytest
+
+import radar_odom
+from radar_odom.onnx_model import OnnxModel
+from radar_odom.profiles import get_profile
+
+onnx = pytest.importorskip("onnx")
+pytest.importorskip("torch")
+
+from radar_odom_export.onnx_export import check_onnx_file  # noqa: E402
+
+SHIPPED = radar_odom.pretrained_names()
+
+
+def test_the_default_models_are_shipped():
+    assert {"cart-0.8", "cart-0.4"} <= set(SHIPPED)
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_shipped_model_keeps_the_export_contract(name):
+    report = check_onnx_file(radar_odom.pretrained(name))  # opset, size budget, no DFT, self-contained
+    assert "DFT" not in report["ops"] and "STFT" not in report["ops"]
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_shipped_model_is_a_calibrated_learned_stream_model_of_its_profile(name):
+    info = OnnxModel(radar_odom.pretrained(name), threads=1).info
+    registry = get_profile(name)
+    assert info.form == "stream" and info.masking == "learned"
+    for field in ("resolution_m", "width_px", "rotation_range_rad", "rotation_step_rad"):
+        assert getattr(info.profile, field) == pytest.approx(getattr(registry, field)), field
+    # calibrated: the graph's β_cov is the one the calibration chose, and its d̄² hit the band
+    training = json.loads(info.training_data)
+    calibration = training["calibration"]
+    assert info.profile.beta_cov == pytest.approx(calibration["beta_cov"])
+    assert 2.7 <= calibration["mean_d2"] <= 3.3
+    assert info.search is not None  # the shipped models use the fast yaw search
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", SHIPPED)
+def test_shipped_model_tracks_a_held_out_urban_drive(name):
+    """The trained weights, not only the graph: per-step error well below the motion itself.
+
+    Held-out seed (>= 5000, never used in training or calibration); 12 sweeps, ~1 s to simulate.
+    A broken export (wrong weights, sign or axis) gives errors of the order of the motion.
+    """
+    from radar_odom.odometer import RadarOdometer
+    from radar_odom.sim.simulator import Simulator
+
+    odo = RadarOdometer(radar_odom.pretrained(name), threads=1)
+    errors, motions = [], []
+    for frame in Simulator(seed=5007, frames=12, scenario="urban"):
+        est = odo.step(frame.scan)
+        if est is None:
+            continue
+        assert np.all(np.isfinite(est.pose)) and np.all(np.isfinite(est.covariance))
+        errors.append(np.hypot(*(est.pose[:2] - frame.pose_rel[:2])))
+        motions.append(np.hypot(*frame.pose_rel[:2]))
+    assert np.median(motions) > 1.0  # the drive moves (else the check below is empty)
+    assert np.median(errors) < 0.25 * np.median(motions), (errors, motions)
