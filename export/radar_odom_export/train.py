@@ -425,6 +425,11 @@ def train(cfg: TrainConfig, train_drives: Sequence[Drive], val_drives: Sequence[
     stop = False
     epoch = start_epoch
     for epoch in range(start_epoch, cfg.epochs):
+        # a budget spent during the previous epoch's validation ends the run here, rather than
+        # one step into a new epoch followed by a whole validation pass (rank 0's clock decides)
+        if epoch > start_epoch and deadline is not None and d.any(d.main and time.perf_counter() > deadline):
+            stop = True
+            break
         lr = cfg.lr * cfg.lr_decay**epoch
         for g in optim.param_groups:
             g["lr"] = lr
