@@ -221,7 +221,7 @@ def test_without_a_static_world_nothing_is_labelled_static():
     sim = Simulator(2, 3, sc, SHORT)
     for fr in sim:
         assert not fr.static_label.any()
-        assert fr.scan.power.max() > 0.8  # there were strong (moving) returns
+        assert fr.scan.power.max() > 0.4  # there were strong (moving) returns (real Navtech peaks ≈ 0.5)
 
 
 def test_same_seed_gives_identical_bytes_and_another_seed_does_not(tmp_path):

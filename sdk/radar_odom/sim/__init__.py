@@ -20,18 +20,20 @@ from .config import (
     TrafficConfig,
     WorldConfig,
 )
+from .presets import SENSOR_PRESETS, get_sensor_preset, randomised_config
 from .scenarios import SCENARIOS, get_scenario
 from .simulator import SimFrame, Simulator, simulate_drive
 from .writer import write_drive
 
 # bumped whenever the same seed and config would give different sweeps (for caches keyed on it)
-SIMULATOR_VERSION = 1
+SIMULATOR_VERSION = 2
 
 __all__ = [
     "ArtefactConfig",
     "DriveConfig",
     "LabelConfig",
     "SCENARIOS",
+    "SENSOR_PRESETS",
     "SIMULATOR_VERSION",
     "Scenario",
     "SensorConfig",
@@ -42,6 +44,8 @@ __all__ = [
     "TrafficConfig",
     "WorldConfig",
     "get_scenario",
+    "get_sensor_preset",
+    "randomised_config",
     "simulate_drive",
     "write_drive",
 ]

@@ -19,10 +19,13 @@ Navtech head reports log power.
 
 Ranges are ``(low, high)`` tuples drawn uniformly per object.
 
-Only the sensor geometry and timing are the CTS350-X's own; power levels, artefact levels and
-world statistics were tuned by eye (the simulated sweeps should look like published Navtech
-sweeps, and raw-power correlation should suffer from the noise, the sensor-fixed patterns and
-the traffic as it does on real data); they are not measurements.
+The sensor geometry and timing are the CTS350-X's own. The power model (count mapping, integer
+power quantisation, noise floor, near-range clutter, point spread, speckle correlation and
+azimuth gain wander) is calibrated against real Oxford Radar RobotCar sweeps with
+`radar_odom.sim.realism` (``benchmarks/realism.py``): every statistic there lies within ±30 % of
+the real sweeps' (``tests/test_realism.py``). Artefact levels and the world remain tuned by eye.
+`SENSOR_PRESETS` holds the Oxford and RADIATE installations; `randomised_config` draws the
+training-time variations around them.
 """
 from __future__ import annotations
 
@@ -48,9 +51,9 @@ class SensorConfig:
     encoder_size: int = 5600
     encoder_step: int = 14
     min_range_m: float = 0.5  # rays start here: nothing inside the sensor housing
-    beamwidth_deg: float = 2.0  # azimuth beam, full width at half maximum
-    range_lobe_sigma_bins: float = 1.6  # main range lobe (chirp bandwidth), Gaussian sigma
-    range_exponent: float = 2.0  # power ∝ 1/r^k (k=2: beam-filling surfaces; 4: point targets)
+    beamwidth_deg: float = 2.4  # azimuth beam, full width at half maximum
+    range_lobe_sigma_bins: float = 3.0  # main range lobe (chirp bandwidth), Gaussian sigma
+    range_exponent: float = 1.5  # power ∝ 1/r^k (k=2: beam-filling surfaces; 4: point targets)
     incidence_exponent: float = 1.5  # surface return ∝ cos(incidence)^n
     min_incidence_cos: float = 0.06  # floor on cos(incidence) so grazing walls still return a little
     max_range_extent_m: float = 12.0  # a grazing wall fills at most this much range in one beam
@@ -62,11 +65,24 @@ class SensorConfig:
     scintillation_db: float = 2.5  # per-sweep random gain of each surface piece / scatterer
     # (aspect-dependent radar cross-section: the same wall is not equally bright twice)
     noise_floor_db: float = 0.0  # mean receiver noise power at near range
-    noise_floor_slope_db_per_100m: float = -3.0  # the floor falls a little with range
-    ground_clutter_db: float = 10.0  # road-surface/ground returns: raise the floor near the
+    noise_floor_slope_db_per_100m: float = 1.0  # real Oxford floors rise a little with range
+    ground_clutter_db: float = 2.0  # road-surface/ground returns: raise the floor near the
     ground_clutter_decay_m: float = 15.0  # sensor by this much, fading (in dB) over this range
-    floor_db: float = -14.0  # dB mapped to count 0 (mean noise sits near count 56)
-    db_per_count: float = 0.25  # dB per 8-bit count (255 counts = 63.75 dB)
+    floor_db: float = -4.5  # dB mapped to count 0 (mean noise sits near count 6–10, as on Oxford)
+    db_per_count: float = 0.5  # dB per 8-bit count (Navtech: 0.5 dB)
+    # A Navtech head quantises *linear* power to integers n before taking the log: real Oxford
+    # sweeps hold only the counts round(10·log10(n) / db_per_count) (0, 6, 10, 12, 14, …), 0 for
+    # n ≤ 1. True: power in units of 10^(floor_db/10) is floored to an integer first.
+    integer_power: bool = True
+    # Per-sweep, per-azimuth gain (dB, Gaussian, smoothed over this many rows): real heads show
+    # strong azimuth-to-azimuth power changes (std/mean of the row means ≈ 0.4–0.5 on Oxford).
+    azimuth_gain_db: float = 3.0
+    azimuth_gain_rows: float = 2.0
+    # Speckle as a complex-Gaussian field smoothed by the point-spread function (sigma in rows
+    # and bins), so it is correlated over a resolution cell along both axes; 0 keeps the
+    # older model (one exponential draw per ``speckle_cell_bins`` bins, independent rows).
+    speckle_sigma_rows: float = 1.3
+    speckle_sigma_bins: float = 3.5
     drop_azimuth_probability: float = 0.0  # chance that a row is dropped (written invalid)
 
     @property
@@ -102,9 +118,9 @@ class ArtefactConfig:
     fixed_ring_range_m: Range = (4.0, 100.0)  # pattern static in the sensor frame, raising the
     fixed_ring_db: Range = (2.0, 6.0)  # noise floor by this much over a few bins
     fixed_ring_width_bins: float = 3.0
-    near_clutter_range_m: float = 3.0  # the vehicle's own returns, static in the sensor frame
-    near_clutter_db: float = 42.0  # level at zero range
-    near_clutter_spread_db: float = 6.0  # fixed per-azimuth variation (roof rack, mount)
+    near_clutter_range_m: float = 2.5  # the vehicle's own returns, static in the sensor frame
+    near_clutter_db: float = -7.0  # level at zero range (before the beam and range-lobe gain)
+    near_clutter_spread_db: float = 3.0  # fixed per-azimuth variation (roof rack, mount)
 
 
 @dataclass(frozen=True)
@@ -201,8 +217,8 @@ class WorldConfig:
     tree_reflectivity_db: Range = (40.0, 48.0)
     tree_transmission: float = 0.45
     # diffuse clutter (kerbs, bushes, grass, signs): weak point scatterers
-    clutter_per_100m2: float = 6.0
-    clutter_band_m: float = 40.0  # clutter lies within this distance of the road edge
+    clutter_per_100m2: float = 8.0
+    clutter_band_m: float = 100.0  # clutter lies within this distance of the road edge
     clutter_reflectivity_db: Range = (34.0, 52.0)
     clutter_front_fraction: float = 0.6  # share of clutter between kerb and facades
     facade_detail_spacing_m: float = 2.5  # mean spacing of point returns along facades

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from statistics import NormalDist
 
 import cv2
 import numpy as np
@@ -76,6 +77,55 @@ def exponential_draws(rng: np.random.Generator, rows: int, cols: int, repeat_col
     if repeat_cols > 1:
         u = cv2.resize(u, (n * repeat_cols, rows), interpolation=cv2.INTER_NEAREST)[:, :cols]
     return cv2.LUT(np.ascontiguousarray(u), _EXP_LUT)
+
+
+# standard-normal quantiles at the 256 byte-value midpoints, rescaled to unit variance: the
+# same byte-to-draw look-up trick for the Gaussian fields of correlated speckle
+_GAUSS_LUT = np.array([NormalDist().inv_cdf((i + 0.5) / 256.0) for i in range(256)], np.float64)
+_GAUSS_LUT = (_GAUSS_LUT / _GAUSS_LUT.std()).astype(np.float32).reshape(1, 256)
+
+
+def gaussian_draws(rng: np.random.Generator, rows: int, cols: int) -> np.ndarray:
+    """float32[rows, cols] unit-variance, zero-mean draws (256-level quantised Gaussian)."""
+    u = np.frombuffer(rng.bytes(rows * cols), dtype=np.uint8).reshape(rows, cols)
+    return cv2.LUT(np.ascontiguousarray(u), _GAUSS_LUT)
+
+
+def _unit_energy_gaussian(sigma: float) -> np.ndarray:
+    """Gaussian kernel with sum(k²) = 1: filtering white unit-variance noise keeps variance 1."""
+    k = _gaussian(max(sigma, 1e-3)).astype(np.float64)
+    return (k / np.sqrt(np.sum(k * k))).astype(np.float32)
+
+
+def correlated_speckle(rng: np.random.Generator, rows: int, cols: int, sigma_rows: float,
+                       sigma_bins: float) -> np.ndarray:
+    """float32[rows, cols] unit-mean exponential speckle correlated along both axes.
+
+    The real and imaginary parts of a complex white Gaussian field are each smoothed by the
+    point-spread function (Gaussian, sigma in rows and bins, unit energy so the variance stays
+    1); the power ``(re² + im²) / 2`` is then exponential with mean 1 at every cell, and
+    neighbouring cells within the point spread share their draw, as in a real radar whose
+    range FFT window and beam overlap neighbouring cells.
+    """
+    kr, ka = _unit_energy_gaussian(sigma_bins), _unit_energy_gaussian(sigma_rows)
+    out = np.zeros((rows, cols), np.float32)
+    for _ in range(2):
+        g = cv2.sepFilter2D(gaussian_draws(rng, rows, cols), cv2.CV_32F, kr, ka, borderType=cv2.BORDER_REFLECT)
+        out += g * g
+    out *= 0.5
+    return out
+
+
+def azimuth_gain(rng: np.random.Generator, rows: int, std_db: float, corr_rows: float) -> np.ndarray:
+    """float32[rows] linear power gain per azimuth row: a Gaussian dB sequence with std
+    ``std_db``, smoothed circularly over ``corr_rows`` rows (a head's row-to-row gain wander)."""
+    g = rng.standard_normal(rows + 64)
+    if corr_rows > 0:
+        k = _gaussian(corr_rows).astype(np.float64)
+        g = np.convolve(np.concatenate([g[-len(k):], g, g[: len(k)]]), k, "same")[len(k): len(k) + rows + 64]
+    g = g[:rows]
+    g = (g - g.mean()) / max(g.std(), 1e-9) * std_db
+    return (10.0 ** (g / 10.0)).astype(np.float32)
 
 
 def ray_segment_hits(orig: np.ndarray, dirs: np.ndarray, a: np.ndarray, b: np.ndarray,
@@ -207,6 +257,18 @@ class SweepRenderer:
         lobe = np.arange(-art.sidelobe_half_width_bins, art.sidelobe_half_width_bins + 1)
         self.lobe_bins = lobe[np.abs(lobe) > 3]
         self.lobe_w = 10 ** (art.sidelobe_relative_db / 10) * np.exp(-np.abs(self.lobe_bins) / art.sidelobe_decay_bins)
+
+    def _to_counts(self, total: np.ndarray) -> np.ndarray:
+        """uint8[A, B] log power of linear power ``total`` (units: 0 dB = noise at near range)."""
+        s = self.cfg.sensor
+        if s.integer_power:
+            # linear power in units of the count-0 level, floored to an integer as the head does
+            n = np.floor(total * np.float32(10.0 ** (-s.floor_db / 10.0)))
+            np.maximum(n, 1.0, out=n)
+            logp = cv2.log(n)
+            return cv2.addWeighted(logp, DB / s.db_per_count, logp, 0.0, 0.0, dtype=cv2.CV_8U)
+        logp = cv2.log(total)
+        return cv2.addWeighted(logp, DB / s.db_per_count, logp, 0.0, -s.floor_db / s.db_per_count, dtype=cv2.CV_8U)
 
     # ------------------------------------------------------------------ geometry → returns
     def _segment_returns(self, segments: list[Segments], orig, yaw, dirs, rng) -> tuple["_Returns", "_Occlusion"]:
@@ -391,13 +453,19 @@ class SweepRenderer:
         streak32 = streak.astype(np.float32)[:, None]
         noise = self.noise_b[None, :] + streak32
         total = static + other
-        if s.noise:
-            # speckle is correlated over a range resolution cell: one draw per cell
-            total *= exponential_draws(rng, A, B, max(1, int(s.speckle_cell_bins)))
-            noise *= exponential_draws(rng, A, B)
-        total += noise
-        logp = cv2.log(total)
-        power = cv2.addWeighted(logp, DB / s.db_per_count, logp, 0.0, -s.floor_db / s.db_per_count, dtype=cv2.CV_8U)
+        if s.noise and s.speckle_sigma_bins > 0:
+            # returns and receiver noise add as complex amplitudes, then one correlated speckle
+            total += noise
+            total *= correlated_speckle(rng, A, B, s.speckle_sigma_rows, s.speckle_sigma_bins)
+        else:
+            if s.noise:
+                # speckle is correlated over a range resolution cell: one draw per cell
+                total *= exponential_draws(rng, A, B, max(1, int(s.speckle_cell_bins)))
+                noise *= exponential_draws(rng, A, B)
+            total += noise
+        if s.noise and s.azimuth_gain_db > 0:
+            total *= azimuth_gain(rng, A, s.azimuth_gain_db, s.azimuth_gain_rows)[:, None]
+        power = self._to_counts(total)
 
         # static label from expected (noise-free) powers; `other` is not needed afterwards
         margin = np.float32(10 ** (cfg.labels.static_margin_db / 10))
