@@ -10,6 +10,8 @@ Ground truth is always returned in the Oxford relative convention (see `radar_od
 - MulRan: absolute poses of ``global_pose.csv`` at the nearest stamp to each sweep's middle time
   (file name − ``sweep_period_s`` / 2; the true mean azimuth time differs by < 1 ms), converted
   as in `._zup`.
+- RADIATE: none (its GNSS/IMU clock is not the radar's); sweeps are ordered by frame number and
+  timed by ``Navtech_Polar.txt``.
 
 A pair without ground truth gives a NaN row; no ground truth at all gives ``None``.
 """
@@ -23,7 +25,7 @@ import numpy as np
 from ..errors import SequenceError
 from ..scan import RadarScan
 from ..se2 import chain_relative
-from . import boreas, mulran, oxford
+from . import boreas, mulran, oxford, radiate
 from ._layout import name_timestamp, to_microseconds
 from ._zup import nearest_poses, oxford_relative_from_zup
 from .scan_io import FORMATS, load_scan
@@ -44,7 +46,8 @@ class Frame:
     Attributes:
         scan: the decoded sweep.
         timestamp_us: its file-name time in µs (Oxford: first azimuth; Boreas: middle of the
-            sweep; MulRan: end of the sweep).
+            sweep; MulRan: end of the sweep; RADIATE: the frame's time in ``Navtech_Polar.txt``,
+            taken as the first azimuth's).
         index: position in the sequence (time order).
         gt_pose_rel: float64[3] Oxford ``(x, y, yaw)`` of this sweep in the previous one, or
             None (first sweep, or no ground truth for this pair).
@@ -60,8 +63,8 @@ class Sequence:
     """Sweeps of a recording in time order; each is decoded only when asked for.
 
     ``len(seq)``, ``seq[i]`` and iteration give `Frame` objects. ``timestamps_us`` int64[N]
-    (file-name times in µs), ``paths`` (the PNGs), ``gt_relative`` float64[N−1, 3] or None,
-    ``format``, ``root``.
+    (file-name times in µs; RADIATE: frame times), ``paths`` (the PNGs), ``gt_relative``
+    float64[N−1, 3] or None, ``format``, ``root``.
     """
 
     def __init__(self, root: Path, format: str, paths, timestamps_us, gt_relative, load_kwargs: dict):
@@ -131,15 +134,19 @@ def _detect(root: Path) -> tuple[str, Path]:
     for rel in _MULRAN_DIRS:
         if (root / rel).is_dir():
             return "mulran", root / rel
+    if (root / radiate.POLAR_DIR).is_dir():
+        return "radiate", root / radiate.POLAR_DIR
     raise SequenceError(
-        f"{root}: no radar sweeps found; expected radar/*.png (Oxford, Boreas) or polar/*.png / "
-        "polar_oxford_form/*.png (MulRan)"
+        f"{root}: no radar sweeps found; expected radar/*.png (Oxford, Boreas), polar/*.png / "
+        "polar_oxford_form/*.png (MulRan) or Navtech_Polar/*.png (RADIATE)"
     )
 
 
 def _sweep_folder(root: Path, fmt: str) -> Path:
     if fmt in ("oxford", "boreas"):
         return root / "radar"
+    if fmt == "radiate":
+        return root / radiate.POLAR_DIR
     for rel in _MULRAN_DIRS:
         if (root / rel).is_dir():
             return root / rel
@@ -174,15 +181,18 @@ def read_sequence(
     Args:
         seq_dir: the sequence folder (Oxford: ``SEQ/radar/``, ``SEQ/gt/``; Boreas: ``SEQ/radar/``,
             ``SEQ/applanix/``; MulRan: ``SEQ/[sensor_data/radar/]polar[_oxford_form]/``,
-            ``SEQ/global_pose.csv``).
-        format: ``"oxford"``, ``"boreas"``, ``"mulran"`` or None to detect from the layout.
+            ``SEQ/global_pose.csv``; RADIATE: ``SEQ/Navtech_Polar/``, ``SEQ/Navtech_Polar.txt``).
+        format: ``"oxford"``, ``"boreas"``, ``"mulran"``, ``"radiate"`` or None to detect from
+            the layout.
         max_pose_gap_s: Boreas/MulRan: a sweep whose nearest pose stamp is further away than
             this has no ground truth (0.1 s: 1 m at 10 m/s, and under half the 0.25 s sweep
             period, so a neighbouring sweep's pose is never taken).
         **load_kwargs: passed to `load_scan` for every sweep (e.g. ``range_resolution_m``).
 
     Raises:
-        SequenceError: no radar PNGs, names that are not timestamps, unreadable ground truth.
+        SequenceError: no radar PNGs, names that are not timestamps (RADIATE: frame numbers),
+            unreadable ground truth; RADIATE: ``Navtech_Polar.txt`` missing, garbled, not
+            increasing or without a line for a sweep.
     """
     root = Path(seq_dir)
     if not root.is_dir():
@@ -195,6 +205,9 @@ def read_sequence(
         raise ValueError(f"unknown radar format {format!r}; choose one of {', '.join(FORMATS)} or None")
     if not folder.is_dir():
         raise SequenceError(f"{root}: no {folder.name}/ folder of radar PNGs for format {fmt!r}")
+    if fmt == "radiate":
+        paths, stamps = radiate.radiate_sweeps(root)
+        return Sequence(root, fmt, paths, stamps, None, load_kwargs)
     paths, stamps = _sweep_files(folder)
     gap_us = int(round(max_pose_gap_s * 1e6))
     if fmt == "oxford":
@@ -202,7 +215,8 @@ def read_sequence(
     elif fmt == "boreas":
         rel = _zup_gt(root / boreas.POSES_RELPATH, boreas.read_boreas_poses, stamps, gap_us)
     else:
-        half = int(round(load_kwargs.get("sweep_period_s", mulran.MULRAN_SWEEP_PERIOD_S) * 1e6 / 2))
+        period_s = load_kwargs.get("sweep_period_s")
+        half = int(round((mulran.MULRAN_SWEEP_PERIOD_S if period_s is None else period_s) * 1e6 / 2))
         rel = _zup_gt(root / mulran.POSES_FILENAME, mulran.read_mulran_poses, stamps - half, gap_us)
     if rel is not None and (len(rel) == 0 or not np.isfinite(rel).all(axis=1).any()):
         rel = None  # a ground-truth file that covers none of these sweeps is no ground truth
