@@ -116,9 +116,11 @@ def test_raw_and_external_masks():
         raw(prev, cur, ones, ones)
 
 
-def test_raw_scan_model_is_finite_at_paper_beta():
-    """β = 1 on raw power: C is in the hundreds, the soft-argmax must stay finite."""
-    model = MaskedCorrelator(get_profile("cart-0.8"), masking="raw")
+@pytest.mark.parametrize("input_norm", ["none", "floor-scale"])
+def test_raw_scan_model_is_finite_at_paper_beta(input_norm):
+    """β = 1 on raw power (or on the normalised sweep, the named profile's default): C is in
+    the hundreds, the soft-argmax must stay finite."""
+    model = MaskedCorrelator(get_profile("cart-0.8").with_(input_norm=input_norm), masking="raw")
     gen = torch.Generator().manual_seed(0)
     prev = torch.rand(1, 128, 128, generator=gen) ** 4
     # moved 2 px ahead (+x = up) and 3 px right: the scene appears 2 px lower and 3 px left

@@ -43,6 +43,19 @@ def model_path(tmp_path_factory):
     return path
 
 
+@pytest.fixture(scope="module")
+def polar_model_path(tmp_path_factory):
+    """The tiny raw model with polar input: built for GEOM, and for GEOM only."""
+    pytest.importorskip("torch")
+    from radar_odom_export.model import MaskedCorrelator
+    from radar_odom_export.onnx_export import export_model
+
+    path = tmp_path_factory.mktemp("onnx") / "tiny-polar-raw.onnx"
+    export_model(MaskedCorrelator(TINY.with_(name="tiny-polar", input_kind="polar"), masking="raw",
+                                  sweep_geometry=GEOM), path, verify=False, exporter="torchscript")
+    return path
+
+
 def world_points(seed=0, n=160):
     """float[n, 2] reflector positions (m) around the start, none within 6 m of it."""
     rng = np.random.default_rng(seed)
@@ -74,12 +87,12 @@ def render_scan(points, pose, t_us, geom=GEOM, source=None):
     return RadarScan.from_arrays(ts, az, img, range_resolution_m=res, source=source or f"synthetic@{t_us}")
 
 
-def drive(rel_xyyaw, steps, seed=0):
+def drive(rel_xyyaw, steps, seed=0, geom=GEOM):
     """Sweeps of a constant-motion drive: sweep k+1's pose is sweep k's @ se2(rel)."""
     pts = world_points(seed)
     pose, out = np.eye(3), []
     for k in range(steps):
-        out.append(render_scan(pts, pose, T0_US + k * PERIOD_US))
+        out.append(render_scan(pts, pose, T0_US + k * PERIOD_US, geom=geom))
         pose = pose @ se2(*rel_xyyaw)
     return out
 
@@ -178,8 +191,9 @@ def test_gap_raises_or_resets(model_path):
     assert len(odo.trajectory) == 1 and odo.trajectory.timestamps_us[0] == late.timestamp_us
 
 
-def test_geometry_mismatch_names_both(model_path):
-    odo = RadarOdometer(model_path)
+def test_polar_model_refuses_another_geometry_naming_both(polar_model_path):
+    odo = RadarOdometer(polar_model_path)
+    assert odo.profile.input_kind == "polar"
     other = dict(GEOM, num_bins=200, range_resolution_m=0.25)
     scan = render_scan(world_points(), np.eye(3), T0_US, geom=other, source="other-radar.png")
     with pytest.raises(ModelMismatchError) as err:
@@ -187,6 +201,63 @@ def test_geometry_mismatch_names_both(model_path):
     msg = str(err.value)
     assert "other-radar.png" in msg and "num_bins: 200" in msg and "num_bins: 160" in msg
     assert "range_resolution_m: 0.25" in msg and "range_resolution_m: 0.3" in msg
+    assert len(odo.trajectory) == 0  # a refused sweep leaves no trace
+    odo.step(render_scan(world_points(), np.eye(3), T0_US))  # its own geometry is taken
+    with pytest.raises(ModelMismatchError, match="num_azimuths: 90"):  # even when longer-ranged
+        odo.step(render_scan(world_points(), np.eye(3), T0_US + PERIOD_US,
+                             geom=dict(GEOM, num_azimuths=90, num_bins=400)))
+
+
+# render_scan blurs in cells, so these keep their structure at the 1.6 m grid scale (a much finer
+# geometry would render sub-pixel points, which raw correlation cannot rotate-match)
+@pytest.mark.parametrize("geom", [
+    dict(GEOM, num_azimuths=200, num_bins=200, range_resolution_m=0.25),  # another radar, 50 m
+    dict(GEOM, num_azimuths=100, num_bins=110, range_resolution_m=0.5),  # coarser, 55 m
+])
+def test_cartesian_model_runs_on_another_sweep_geometry(model_path, geom):
+    odo = RadarOdometer(model_path)
+    assert odo.profile.input_kind == "cartesian" and odo.info.sweep_geometry == GEOM
+    rel = (1.6, 0.0, 0.05)
+    scans = drive(rel, 3, seed=1, geom=geom)
+    assert scans[0].geometry != GEOM and scans[0].max_range_m >= TINY.support_radius_m
+    assert odo.step(scans[0]) is None
+    for est in [odo.step(s) for s in scans[1:]]:
+        assert not est.flags and np.all(np.isfinite(est.pose))
+        # polar→Cartesian removed the geometry: the known motion is found as on GEOM sweeps
+        assert abs(est.pose[0] - rel[0]) < 0.8 and abs(est.pose[1] - rel[1]) < 0.8
+        assert abs(est.pose[2] - rel[2]) < 0.025
+
+
+def test_cartesian_model_refuses_a_sweep_too_short_for_its_grid(model_path):
+    odo = RadarOdometer(model_path)
+    need = TINY.support_radius_m  # (63/2 − 2 − 1) × 1.6 = 45.6 m
+    assert need == pytest.approx(45.6)
+    short = render_scan(world_points(), np.eye(3), T0_US, geom=dict(GEOM, num_bins=120),
+                        source="short-radar.png")  # 120 × 0.3 = 36 m
+    with pytest.raises(ModelMismatchError) as err:
+        odo.step(short)
+    msg = str(err.value)
+    assert "short-radar.png" in msg and "36.00 m" in msg and "45.60 m" in msg
+    assert "smaller grid" in msg
+    assert len(odo.trajectory) == 0
+    # just long enough is fine: 152 bins × 0.3 = 45.6 m
+    ok = render_scan(world_points(), np.eye(3), T0_US, geom=dict(GEOM, num_bins=152))
+    assert ok.max_range_m == pytest.approx(need) and odo.step(ok) is None
+
+
+def test_support_radius_is_the_exported_support_disc():
+    pytest.importorskip("torch")
+    from radar_odom_export.model import support_disc
+
+    for p in (TINY, GridProfile("x", resolution_m=0.4, width_px=256, mask_downsample=2),
+              GridProfile("y", resolution_m=0.8, width_px=128)):
+        disc = support_disc(p.width_px, p.translation_cells).numpy().astype(bool)
+        c = (p.width_px - 1) / 2
+        rows = np.arange(p.width_px) - c
+        r_px = np.hypot(rows[:, None], rows[None, :])
+        assert r_px[disc].max() <= p.support_radius_m / p.resolution_m + 1e-9
+        assert r_px[~disc].min() > p.support_radius_m / p.resolution_m
+        assert r_px[disc].max() > p.support_radius_m / p.resolution_m - 1.0  # tight, to a pixel
 
 
 @pytest.mark.parametrize("kind,reason", [("blank", "blank"), ("saturated", "saturated"),

@@ -252,14 +252,16 @@ def test_export_command_reports_a_bad_checkpoint(tmp_path, capsys):
 def test_parity_with_torch_fft_on_real_sized_sweeps(tmp_path):
     """cart-0.4 (W = 256, 61 yaws): onnxruntime vs the torch FFT path on simulated sweeps.
 
-    β is lowered so that the soft-argmax spreads over several cells (raw correlation values
-    are in the thousands): the regime where the pose and covariance depend on the most
-    volume entries, so volume errors would show.
+    β is lowered so that the soft-argmax spreads over several cells (correlation values of the
+    normalised sweeps are in the thousands; 0.05 sufficed for the unnormalised power of profiles
+    before ``input_norm``): the regime where the pose and covariance depend on the most volume
+    entries, so volume errors would show.
     """
     from radar_odom.polar import polar_to_cartesian
     from radar_odom.sim import simulate_drive
 
-    profile = get_profile("cart-0.4").with_(beta_pose=0.05, beta_cov=0.05)
+    profile = get_profile("cart-0.4").with_(beta_pose=0.02, beta_cov=0.02)
+    assert profile.input_norm == "floor-scale"  # the normalisation is in the parity check too
     model = seeded_model(profile, masking="raw")
     path = tmp_path / "cart04.onnx"
     report = export_model(model, path, verify=False)

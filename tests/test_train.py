@@ -541,6 +541,28 @@ def test_cli_trains_on_recordings_holding_out_the_last_folder(recordings, tmp_pa
     assert main(argv + ["--supervised-masks"]) == 1
 
 
+def test_cli_writes_a_cfar_checkpoint_without_training(recordings, tmp_path, monkeypatch):
+    """`radar-odom train --masking cfar`: like raw, nothing trained, a weightless checkpoint that
+    `radar-odom export` takes (tests/test_normalise.py exports one)."""
+    from dataclasses import asdict
+
+    from radar_odom.cli import main
+
+    monkeypatch.setenv("RADAR_ODOM_CACHE", str(tmp_path / "cache"))
+    prof = tmp_path / "tiny.json"
+    prof.write_text(json.dumps(asdict(TINY.with_(input_norm="floor-scale"))))
+    out = tmp_path / "cfar.pt"
+    assert main(["train", *map(str, recordings), "-o", str(out), "--profile", str(prof), "--masking", "cfar",
+                 "--batch", "2", "--threads", "1"]) == 0
+    model, meta = load_checkpoint(out)
+    assert meta["masking"] == "cfar" and meta["train"]["steps"] == 0 and model.cfar is not None
+    assert meta["profile"].input_norm == "floor-scale"
+    # a profile without the normalisation is refused: CFAR thresholds are in normalised units
+    prof.write_text(json.dumps(asdict(TINY)))
+    assert main(["train", *map(str, recordings), "-o", str(tmp_path / "x.pt"), "--profile", str(prof),
+                 "--masking", "cfar", "--batch", "2", "--threads", "1"]) == 1
+
+
 def test_cli_commands_need_torch_only_when_run():
     import subprocess
     import sys

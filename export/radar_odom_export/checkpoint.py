@@ -4,7 +4,7 @@ Format ``radar-odom-checkpoint/1``::
 
     {"format": "radar-odom-checkpoint/1",
      "profile": asdict(GridProfile),          # the grid, both β, the U-Net size
-     "masking": "learned" | "raw",            # "raw": mask ≡ 1, nothing trained
+     "masking": "learned" | "raw" | "cfar",   # "raw": mask ≡ 1, "cfar": classical mask; nothing trained
      "state_dict": {name: tensor},            # learnable weights only (may be empty)
      "train": {...},                          # how it was made: command, seeds, wall_s, ...
      "calibration": {...}}                    # optional: written by `radar-odom calibrate`
@@ -25,7 +25,7 @@ from radar_odom.errors import RadarOdomError
 from radar_odom.profiles import GridProfile
 
 FORMAT = "radar-odom-checkpoint/1"
-MASKINGS = ("learned", "raw")
+MASKINGS = ("learned", "raw", "cfar")
 
 
 class CheckpointError(RadarOdomError, ValueError):
@@ -151,3 +151,28 @@ def _plain(obj):
     if isinstance(obj, os.PathLike):
         return os.fspath(obj)
     raise TypeError(f"cannot store {type(obj).__name__} in a checkpoint; use plain values")
+
+
+# ----------------------------------------------------------------------------- shipped checkpoints
+SHIPPED_DIR = Path(__file__).resolve().parent / "checkpoints"
+
+
+def shipped_checkpoint_names() -> list[str]:
+    """Names of the checkpoints shipped with the package (those of the pretrained ONNX models)."""
+    return sorted(p.stem for p in SHIPPED_DIR.glob("*.pt"))
+
+
+def resolve_checkpoint(name_or_path) -> Path:
+    """A checkpoint file: ``name_or_path`` itself when it exists, else the shipped checkpoint of
+    that name (``"cart-0.4"`` or ``"cart-0.4.pt"``); `CheckpointError` naming both otherwise."""
+    path = Path(name_or_path)
+    if path.is_file():
+        return path
+    stem = path.name[:-3] if path.name.endswith(".pt") else path.name
+    if path.parent == Path(".") and stem in shipped_checkpoint_names():
+        return SHIPPED_DIR / f"{stem}.pt"
+    raise CheckpointError(
+        f"{name_or_path}: no such checkpoint file, and not a shipped checkpoint name "
+        f"({', '.join(shipped_checkpoint_names()) or 'none shipped'})"
+    )
+

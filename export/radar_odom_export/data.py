@@ -97,6 +97,29 @@ def sim_specs(seeds: Iterable[int], scenarios: Sequence[str], frames: int, confi
     return [DriveSpec(sc, int(s), int(frames), config) for sc in scenarios for s in seeds]
 
 
+SENSORS = ("randomised", "oxford", "radiate")
+
+
+def sensor_specs(seeds: Iterable[int], scenarios: Sequence[str], frames: int, sensor: str = "randomised") -> list[DriveSpec]:
+    """Like `sim_specs`, with the radar chosen by ``sensor``: a preset of `radar_odom.sim.presets`
+    for every drive, or ``"randomised"``: one `randomised_config` draw per (scenario, seed), so a
+    model trained on them sees many gains, noise floors, speckle and clutter levels."""
+    from radar_odom.sim import SCENARIOS as PRESETS_BY_NAME, get_sensor_preset, randomised_config
+
+    if sensor not in SENSORS:
+        raise DataSpecError(f"sensor {sensor!r}: choose one of {', '.join(SENSORS)}")
+    names = list(PRESETS_BY_NAME)
+    specs = []
+    for sc in scenarios:
+        for s in seeds:
+            if sensor == "randomised":
+                cfg = randomised_config(int(s) * 16 + (names.index(sc) if sc in names else 15))
+            else:
+                cfg = None if sensor == "oxford" else get_sensor_preset(sensor)
+            specs.append(DriveSpec(sc, int(s), int(frames), cfg))
+    return specs
+
+
 def parse_seeds(text: str) -> list[int]:
     """``"1000-1003,1010"`` -> [1000, 1001, 1002, 1003, 1010] (ranges inclusive)."""
     out: list[int] = []

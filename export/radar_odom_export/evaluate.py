@@ -31,7 +31,7 @@ def estimate_drive(model, images: np.ndarray, batch: int = 8) -> tuple[np.ndarra
     """(poses float64[F-1, 3], covariances float64[F-1, 3, 3]) for consecutive sweeps [F, W, W]."""
     poses, covs = [], []
     p = model.profile
-    streamable = p.mode == "single" and p.input_kind == "cartesian" and model.masking in ("learned", "raw")
+    streamable = p.mode == "single" and p.input_kind == "cartesian" and model.masking in ("learned", "raw", "cfar")
     corr, rot = model.correlation, model.rotator
     prev_state = None
     for s in range(0, len(images), batch):

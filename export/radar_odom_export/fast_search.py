@@ -63,7 +63,7 @@ from torch import nn
 from radar_odom.profiles import GridProfile
 
 from .correlation import rotation_grids
-from .softargmax import candidate_weights
+from .softargmax import candidate_weights, peak_window, pose_window, windowed_weights
 
 TAU = 2.0 * math.pi
 ROTATIONS = ("polar", "bilinear")
@@ -609,7 +609,9 @@ class FastStreamStep(nn.Module):
     def soft_argmax(self, volume: torch.Tensor, yaws: torch.Tensor):
         """Paper eq. 3 over the evaluated yaws: volume [B, K', N, N], yaws [B, K'] → pose, covariance."""
         p = self.profile
-        pose, _ = band_moments(candidate_weights(volume, p.beta_pose).reshape(volume.shape), self.offsets_m, yaws)
+        window = pose_window(p)
+        mask = None if window is None else peak_window(volume, self.offsets_m, self.offsets_m, yaws, *window)
+        pose, _ = band_moments(windowed_weights(volume, p.beta_pose, mask), self.offsets_m, yaws)
         _, cov = band_moments(candidate_weights(volume, p.beta_cov).reshape(volume.shape), self.offsets_m, yaws)
         return pose, cov + self.model.cov_floor
 

@@ -3,8 +3,14 @@
 One module holds the whole differentiable pipeline for training and export:
 
 * masking ``"learned"``: the U-Net predicts ``M`` and the features are ``S = M ⊙ Z``;
-  ``"raw"``: ``M ≡ 1`` (the raw-scan baseline, no parameters); ``"external"``: the caller
-  passes the masks (e.g. the simulator's static labels, or masks from another network).
+  ``"raw"``: ``M ≡ 1`` (the raw-scan baseline, no parameters); ``"cfar"``: a classical
+  cell-averaging CFAR mask (`cfar.CFARMask`, no parameters: for a new radar without ground
+  truth); ``"external"``: the caller passes the masks (e.g. the simulator's static labels, or
+  masks from another network).
+* ``profile.input_norm`` ``"floor-scale"``: each sweep is normalised first (`normalise`:
+  range-dependent floor removed, divided by a robust per-sweep scale), and ``Z`` above is the
+  normalised sweep everywhere: the masker's input and the features ``S = M ⊙ Z_n``. Public
+  methods take raw sweeps and normalise them once. ``"none"``: the sweep as it is.
 * ``profile.mode`` ``"single"`` masks each sweep alone, ``"dual"`` stacks both sweeps into a
   2-channel U-Net input and gets both masks at once.
 * ``profile.input_kind`` ``"cartesian"``: sweeps are Cartesian images float[B, W, W];
@@ -27,11 +33,13 @@ from torch import nn
 from radar_odom.polar import cartesian_sample_maps, near_range_bins
 from radar_odom.profiles import GridProfile
 
+from .cfar import make_cfar
 from .correlation import Rotator, candidate_poses, make_correlation
-from .softargmax import soft_argmax
+from .normalise import make_normaliser
+from .softargmax import pose_window, soft_argmax
 from .unet import UNet
 
-MASKINGS = ("learned", "raw", "external")
+MASKINGS = ("learned", "raw", "cfar", "external")
 
 # The Navtech CTS350-X as recorded in Oxford Radar RobotCar (and simulated by default): the
 # sweep geometry a polar model is built for unless told otherwise. Keys as `RadarScan.geometry`.
@@ -67,7 +75,8 @@ class PolarToCartesian(nn.Module):
         offset = float(sweep_geometry["range_offset_m"])
         self.num_azimuths = int(sweep_geometry["num_azimuths"])
         self.bin_factor = max(1, int(round(profile.resolution_m / rr)))
-        reduced_rr = rr * self.bin_factor
+        reduced_rr = self.reduced_rr = rr * self.bin_factor
+        self.offset_m = offset
         azimuths = 2 * np.pi * np.arange(self.num_azimuths) / self.num_azimuths
         available = int(sweep_geometry["num_bins"]) // self.bin_factor
         map_bin, _ = cartesian_sample_maps(azimuths, available, reduced_rr, offset,
@@ -141,6 +150,12 @@ class MaskedCorrelator(nn.Module):
         self.sweep_geometry = dict(sweep_geometry or CTS350X_GEOMETRY)
         self.to_cartesian = (PolarToCartesian(profile, self.sweep_geometry)
                              if profile.input_kind == "polar" else None)
+        self.normaliser = make_normaliser(profile, self.to_cartesian)
+        if masking == "cfar" and self.normaliser is None:
+            # its thresholds are in normalised units; on raw power they would depend on the gain
+            raise ValueError(f"masking='cfar' needs a profile with input_norm='floor-scale' "
+                             f"(profile {profile.name!r} has {profile.input_norm!r})")
+        self.cfar = make_cfar(profile, self.to_cartesian) if masking == "cfar" else None
         self.rotator = Rotator(profile)
         self.correlation = make_correlation(dft, profile.width_px, profile.translation_cells)
         self.register_buffer("candidates", candidate_poses(profile), persistent=False)
@@ -149,14 +164,26 @@ class MaskedCorrelator(nn.Module):
         self.register_buffer("cov_floor", torch.diag(torch.tensor(profile.covariance_floor)), persistent=False)
 
     # ------------------------------------------------------------------ masks and features
+    def normalise(self, x: torch.Tensor) -> torch.Tensor:
+        """Sweeps of any leading shape as the masker and the features see them: the profile's
+        input normalisation (`normalise`), or the sweeps themselves for ``input_norm="none"``."""
+        return x if self.normaliser is None else self.normaliser(x)
+
     def mask(self, x: torch.Tensor) -> torch.Tensor:
         """Masks in [0, 1] of sweeps x: [B, H, W] (single) or [B, 2, H, W] (dual, prev+cur),
-        in the input's own domain (polar masks for the polar kind); the same shape out."""
+        in the input's own domain (polar masks for the polar kind); the same shape out.
+        ``x`` is the raw sweep (normalised here when the profile asks for it)."""
+        return self._mask(self.normalise(x))
+
+    def _mask(self, z: torch.Tensor) -> torch.Tensor:
+        """`mask` of already normalised sweeps z."""
         if self.masking == "external":
             raise ValueError("masking='external': the model has no masker; pass the masks")
+        if self.cfar is not None:
+            return self.cfar(z)
         if self.masker is None:
-            return torch.ones_like(x)
-        z = x if self.dual else x.unsqueeze(1)
+            return torch.ones_like(z)
+        z = z if self.dual else z.unsqueeze(1)
         f = self.profile.mask_downsample if self.to_cartesian is None else 1
         if f > 1:  # mask on a coarser grid (see GridProfile.mask_downsample)
             m = self.masker(nn.functional.avg_pool2d(z, f))
@@ -166,13 +193,15 @@ class MaskedCorrelator(nn.Module):
             m = self.masker(z)
         return m if self.dual else m.squeeze(1)
 
-    def _to_features(self, sweep: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        """``S = M ⊙ Z`` as a Cartesian image float[B, W, W] (polar: masked, then mapped)."""
-        masked = mask * sweep
+    def _to_features(self, z: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """``S = M ⊙ Z`` as a Cartesian image float[B, W, W] (polar: masked, then mapped), from
+        a normalised sweep z."""
+        masked = mask * z
         cart = masked if self.to_cartesian is None else self.to_cartesian(masked)
         return cart * self.support
 
     def _masks(self, prev, cur, prev_mask, cur_mask):
+        """Masks of the normalised sweeps prev, cur (or the caller's, for external masking)."""
         if self.masking == "external":
             if prev_mask is None or cur_mask is None:
                 raise ValueError("masking='external' needs prev_mask and cur_mask (same shapes "
@@ -182,22 +211,24 @@ class MaskedCorrelator(nn.Module):
             raise ValueError(f"masking={self.masking!r} predicts its own masks; "
                              "build the model with masking='external' to pass masks")
         if self.dual:
-            both = self.mask(torch.stack([prev, cur], dim=1))
+            both = self._mask(torch.stack([prev, cur], dim=1))
             return both[:, 0], both[:, 1]
-        return self.mask(prev), self.mask(cur)
+        return self._mask(prev), self._mask(cur)
 
     def features(self, prev, cur, prev_mask=None, cur_mask=None):
         """(S_prev, S_cur), Cartesian float[B, W, W] each: the images the search matches."""
+        prev, cur = self.normalise(prev), self.normalise(cur)
         m_prev, m_cur = self._masks(prev, cur, prev_mask, cur_mask)
         return self._to_features(prev, m_prev), self._to_features(cur, m_cur)
 
     def sweep_features(self, sweep, mask=None) -> torch.Tensor:
         """``S = M ⊙ Z`` of one sweep per batch item (single mode), Cartesian float[B, W, W]."""
+        z = self.normalise(sweep)
         if self.masking == "external":
             if mask is None:
                 raise ValueError("masking='external' needs the sweep's mask")
-            return self._to_features(sweep, mask)
-        return self._to_features(sweep, self.mask(sweep))
+            return self._to_features(z, mask)
+        return self._to_features(z, self._mask(z))
 
     # ------------------------------------------------------------------ pair form
     def correlation_volume(self, prev, cur, prev_mask=None, cur_mask=None) -> torch.Tensor:
@@ -209,7 +240,8 @@ class MaskedCorrelator(nn.Module):
     def pose_from_volume(self, volume: torch.Tensor):
         """(pose [B, 3], covariance [B, 3, 3]) by soft-argmax with the profile's two βs; the
         covariance includes the profile's quantisation floor (`GridProfile.covariance_floor`)."""
-        pose, cov = soft_argmax(volume, self.candidates, self.profile.beta_pose, self.profile.beta_cov)
+        pose, cov = soft_argmax(volume, self.candidates, self.profile.beta_pose, self.profile.beta_cov,
+                                window=pose_window(self.profile))
         return pose, cov + self.cov_floor
 
     def forward(self, prev, cur, prev_mask=None, cur_mask=None):

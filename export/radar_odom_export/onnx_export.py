@@ -2,9 +2,11 @@
 
 What ends up in the file (``radar-odom export model.pt``):
 
-* the whole step in one graph: masker (U-Net), polar→Cartesian for polar models, rotation by
-  every yaw candidate (``GridSample``), the matmul DFT (no ``DFT``/``STFT`` op anywhere: those
-  run only on onnxruntime's CPU provider), the windowed inverse, and the soft-argmax;
+* the whole step in one graph: the input normalisation (profile ``input_norm``, see
+  `normalise`), masker (U-Net, or the CFAR mask of ``masking="cfar"``), polar→Cartesian for
+  polar models, rotation by every yaw candidate (``GridSample``), the matmul DFT (no
+  ``DFT``/``STFT`` op anywhere: those run only on onnxruntime's CPU provider), the windowed
+  inverse, and the soft-argmax;
 * **stream form** (default): inputs ``cart`` [1, W, W] (``polar`` [1, A, B'] for polar models)
   and ``prev_state`` (single mode: the previous masked sweep's half spectrum [1, 2, W, W/2+1];
   dual mode: the previous sweep), outputs ``pose`` [1, 3], ``covariance`` [1, 3, 3] and

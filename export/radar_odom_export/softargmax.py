@@ -35,15 +35,67 @@ def weighted_covariance(weights: torch.Tensor, candidates: torch.Tensor) -> torc
     return (centred * weights.unsqueeze(-1)).transpose(1, 2) @ centred
 
 
+def peak_window(volume: torch.Tensor, x_m: torch.Tensor, y_m: torch.Tensor, yaw_rad: torch.Tensor,
+                half_m: float, half_rad: float) -> torch.Tensor:
+    """float[B, K, N, N] 0/1 window of the candidates within ``±half_m`` (x and y) and ``±half_rad``
+    (yaw) of each volume's best candidate.
+
+    ``x_m``, ``y_m`` float[N] are the volume's translation axes (dims 2 and 3) and ``yaw_rad``
+    float[K] or float[B, K] its yaws (dim 1; per batch item in the band search). Written with
+    ArgMax, integer arithmetic and comparisons so it exports to every runtime.
+    """
+    b, k, n, _ = volume.shape
+    best = volume.flatten(1).argmax(dim=1)  # [B]
+    kk = torch.div(best, n * n, rounding_mode="floor")
+    rest = best - kk * (n * n)
+    ii = torch.div(rest, n, rounding_mode="floor")
+    jj = rest - ii * n
+    yaws = yaw_rad if yaw_rad.dim() == 2 else yaw_rad.unsqueeze(0).expand(b, k)
+    yaw_best = torch.gather(yaws, 1, kk.unsqueeze(1))  # [B, 1]
+    in_k = ((yaws - yaw_best).abs() <= half_rad).to(volume.dtype)  # [B, K]
+    in_i = ((x_m.unsqueeze(0) - x_m[ii].unsqueeze(1)).abs() <= half_m).to(volume.dtype)  # [B, N]
+    in_j = ((y_m.unsqueeze(0) - y_m[jj].unsqueeze(1)).abs() <= half_m).to(volume.dtype)
+    return in_k[:, :, None, None] * in_i[:, None, :, None] * in_j[:, None, None, :]
+
+
+def windowed_weights(volume: torch.Tensor, beta: float, window: torch.Tensor | None) -> torch.Tensor:
+    """``softmax(β·C)`` [B, K, N, N], restricted to ``window`` (see `peak_window`) and renormalised
+    when one is given: the pose then interpolates between the cells around the peak instead of
+    averaging every distant candidate (which pulls a global soft-argmax towards the window's
+    centre, i.e. towards zero motion, whenever the volume is not sharply peaked)."""
+    w = candidate_weights(volume, beta).reshape(volume.shape)
+    if window is None:
+        return w
+    w = w * window
+    return w / w.sum(dim=(1, 2, 3), keepdim=True).clamp_min(1e-30)
+
+
+def pose_window(profile) -> tuple[float, float] | None:
+    """(half_m, half_rad) of the profile's local pose window, or None for the paper's global one."""
+    c = getattr(profile, "pose_window_cells", 0)
+    if not c:
+        return None
+    eps = 1e-6
+    return c * profile.resolution_m + eps, c * profile.rotation_step_rad + eps
+
+
 def soft_argmax(volume: torch.Tensor, candidates: torch.Tensor, beta: float,
-                beta_cov: float | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+                beta_cov: float | None = None, window: tuple[float, float] | None = None
+                ) -> tuple[torch.Tensor, torch.Tensor]:
     """Pose mean float[B, 3] and covariance float[B, 3, 3] from a volume float[B, K, N, N].
 
     ``candidates`` is float[K, N, N, 3] (x m, y m, yaw rad), laid out like the volume (see
     ``correlation.candidate_poses``). ``beta`` weights the pose; ``beta_cov`` (default: the
-    same) weights the covariance.
+    same) weights the covariance. ``window`` (half_m, half_rad), if given, restricts the pose's
+    weights to the candidates around the best one (`peak_window`); the covariance always uses
+    every candidate, so an ambiguous volume still says so.
     """
     flat = candidates.reshape(-1, 3)
+    if window is not None:
+        mask = peak_window(volume, candidates[0, :, 0, 0], candidates[0, 0, :, 1], candidates[:, 0, 0, 2],
+                           window[0], window[1])
+        mean = weighted_mean(windowed_weights(volume, beta, mask).flatten(1), flat)
+        return mean, weighted_covariance(candidate_weights(volume, beta if beta_cov is None else beta_cov), flat)
     mean = weighted_mean(candidate_weights(volume, beta), flat)
     cov_weights = candidate_weights(volume, beta if beta_cov is None else beta_cov)
     return mean, weighted_covariance(cov_weights, flat)

@@ -22,8 +22,10 @@ Objectives
 * ``masks`` (``--supervised-masks``, the paper's mask-supervision baseline): binary cross
   entropy between the predicted mask and the simulator's static-world label on the Cartesian
   grid, no pose loss.
-* ``raw`` (mask ≡ 1): nothing to train; a checkpoint without weights is still written (with
-  its validation loss) so every baseline is evaluated, calibrated and exported the same way.
+* ``raw`` (mask ≡ 1) and ``cfar`` (the classical CFAR mask on the normalised sweep,
+  `cfar.CFARMask`: for a new radar without ground truth to train on): nothing to train; a
+  checkpoint without weights is still written (with its validation loss) so every baseline is
+  evaluated, calibrated and exported the same way.
 
 Optimiser: Adam. The paper used lr 1e-5, batch 5, for days on a GPU; on 2 CPU cores we use
 lr 1e-3 decayed by ``lr_decay`` per epoch, batch 8 (see ``radar-odom train --help``).
@@ -58,6 +60,7 @@ from .checkpoint import CheckpointError, save_checkpoint
 from .data import NO_AUGMENT, Augment, DataSpecError, Drive, PairDataset
 
 STATE_FORMAT = "radar-odom-train-state/1"
+TRAINING_FREE = ("raw", "cfar")  # maskings with no weights: `train` only describes them
 POSE_LOSSES = ("mse", "ce", "ce+mse")
 _MSE_TEXT = "mean[((dx^2+dy^2)/res^2) + yaw_weight*(dyaw/rotation_step)^2] (grid cells^2)"
 _CE_TEXT = "cross-entropy of softmax(beta_pose*C) against the trilinear gt target"
@@ -69,7 +72,7 @@ class TrainConfig:
 
     output: str
     profile: GridProfile
-    masking: str = "learned"  # "learned" | "raw"
+    masking: str = "learned"  # "learned" | "raw" | "cfar"
     supervised_masks: bool = False
     epochs: int = 30
     minutes: float | None = None  # wall-clock budget for this invocation (stops mid-epoch)
@@ -89,8 +92,8 @@ class TrainConfig:
 
     @property
     def objective(self) -> str:
-        if self.masking == "raw":
-            return "raw"
+        if self.masking in TRAINING_FREE:
+            return self.masking
         return "masks" if self.supervised_masks else "pose"
 
 
@@ -340,6 +343,7 @@ def _config_record(cfg: TrainConfig) -> dict:
             "pose": {"mse": _MSE_TEXT, "ce": _CE_TEXT, "ce+mse": f"{_CE_TEXT} + {_MSE_TEXT}"}[cfg.pose_loss],
             "masks": "BCE(mask, static label)",
             "raw": "none",
+            "cfar": "none",
         }[cfg.objective],
     }
     rec.update(cfg.info)
@@ -347,7 +351,7 @@ def _config_record(cfg: TrainConfig) -> dict:
 
 
 def train(cfg: TrainConfig, train_drives: Sequence[Drive], val_drives: Sequence[Drive], dist: Dist | None = None) -> dict:
-    """Train (or, for ``masking="raw"``, just describe) a model; returns the run summary.
+    """Train (or, for a `TRAINING_FREE` masking, just describe) a model; returns the run summary.
 
     Writes ``cfg.output`` (best checkpoint), ``<out>.state.pt``, ``<out>.log.json`` and
     ``<out>.loss.png`` from rank 0. With ``cfg.resume`` it continues from ``<out>.state.pt``.
@@ -371,12 +375,14 @@ def train(cfg: TrainConfig, train_drives: Sequence[Drive], val_drives: Sequence[
                   train_pairs=len(train_set), val_pairs=len(val_set),
                   train_drives=[x.name for x in train_drives], val_drives=[x.name for x in val_drives])
 
-    if cfg.objective == "raw":
+    if cfg.objective in TRAINING_FREE:
         val = validation_stats(objective, val_set, cfg.batch, d)["pose_mse"]
+        note = {"raw": "raw scans: mask ≡ 1, no weights",
+                "cfar": "cell-averaging CFAR mask on the normalised sweep, no weights"}[cfg.masking]
         record.update(best_val=val, best_epoch=0, epochs_run=0, steps=0,
-                      wall_s=time.perf_counter() - t_start, note="raw scans: mask ≡ 1, no weights")
+                      wall_s=time.perf_counter() - t_start, note=note)
         if d.main:
-            save_checkpoint(cfg.output, model, "raw", train=record)
+            save_checkpoint(cfg.output, model, cfg.masking, train=record)
             _write_log(cfg.output, record, [], [])
         return record
 
@@ -630,17 +636,26 @@ def resolve_profile(text: str, unet_base_channels: int | None = None, unet_depth
     return profile
 
 
+def _sim_version() -> int:
+    from radar_odom.sim import SIMULATOR_VERSION
+
+    return SIMULATOR_VERSION
+
+
 def run_from_args(args) -> dict:
     """`radar-odom train`: build the data (rank 0 first, it fills the cache), then `train`."""
     import shlex
 
     from .data import (Augment, build_drives, check_seed_policy, folder_drives, parse_seeds,
-                       sequence_drives, sim_specs, split_folders)
+                       sensor_specs, sequence_drives, split_folders)
 
     d = init_distributed()
     try:
         profile = resolve_profile(args.profile, args.unet_base_channels, args.unet_depth,
                                   getattr(args, "beta_pose", None))
+        if args.masking == "cfar" and profile.input_norm == "none":  # said before any data is built
+            raise DataSpecError(f"--masking cfar needs a profile with input_norm 'floor-scale' (its thresholds "
+                                f"are in normalised units); profile {profile.name!r} has 'none'")
         labels = bool(args.supervised_masks)
         info = {"command": "radar-odom " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
                 "profile_name": profile.name}
@@ -659,11 +674,15 @@ def run_from_args(args) -> dict:
                 check_seed_policy(seeds, "train")
                 check_seed_policy(val_seeds, "val")
                 workers = args.workers if d.main else 1
-                train_drives = build_drives(profile, sim_specs(seeds, scenarios, args.frames), workers,
+                sensor = getattr(args, "sensor", "randomised")
+                val_frames = getattr(args, "val_frames", None) or args.frames
+                train_drives = build_drives(profile, sensor_specs(seeds, scenarios, args.frames, sensor), workers,
                                             with_labels=labels, desc="training drives")
-                val_drives = build_drives(profile, sim_specs(val_seeds, scenarios, args.frames), workers,
+                # validation on the Oxford preset: the installation the simulator is calibrated to
+                val_drives = build_drives(profile, sensor_specs(val_seeds, scenarios, val_frames, "oxford"), workers,
                                           with_labels=labels, desc="validation drives")
-                info.update(sim_seeds=seeds, val_seeds=val_seeds, scenarios=scenarios, frames=args.frames)
+                info.update(sim_seeds=seeds, val_seeds=val_seeds, scenarios=scenarios, frames=args.frames,
+                            sensor=sensor, val_sensor="oxford", simulator_version=_sim_version())
         augment = Augment(mirror_p=0.0 if args.no_mirror else 0.5, swap_p=0.0 if args.no_swap else 0.5,
                           rotate_max_rad=math.radians(args.rotate_deg))
         cfg = TrainConfig(

@@ -30,6 +30,8 @@ _LAZY = {
     "read_sequence": "formats",
     "RadarOdometer": "odometer",
     "Estimate": "odometer",
+    "MotionPriorConfig": "motion_prior",
+    "ExternalOdometry": "motion_prior",
 }
 
 # Eager, not lazy: `pretrained` is also the name of the submodule that defines it, and importing

@@ -14,8 +14,13 @@ Faults, and what the odometer does about them (never a NaN, never a broken traje
 - A gap of more than ``max_gap_s`` seconds since the previous sweep: ``on_gap="raise"``
   (default) raises `StreamError` (call `reset()` and go on); ``on_gap="reset"`` resets the
   stream itself, so that sweep starts a new trajectory at identity and `step` returns None.
-- A sweep whose geometry (azimuth count, bin count, range resolution, range offset) differs
-  from the one in the model's metadata → `ModelMismatchError` naming both.
+- Sweep geometry. A Cartesian-input model runs on any sweep geometry (azimuth count, bin count,
+  range resolution and offset may all differ from the radar it was trained on): the sweep is
+  resampled onto the model's grid first. It needs only a sweep that reaches the disc it
+  correlates (`GridProfile.support_radius_m`); a shorter one (``max_range_m`` below that radius)
+  → `ModelMismatchError` giving both ranges. A polar-input model is built for one geometry: a
+  sweep whose geometry differs from the one in the model's metadata → `ModelMismatchError`
+  naming both.
 - A *degenerate* sweep — blank (almost no power), saturated (most bins at full scale), or
   mostly invalid (fewer than ``min_valid_fraction`` of its azimuth rows valid) — or a graph
   output that is not finite: the estimate is the constant-velocity prior (the previous relative
@@ -26,6 +31,22 @@ Faults, and what the odometer does about them (never a NaN, never a broken traje
   is re-expressed relative to the degenerate sweep's prior pose, so the absolute trajectory
   follows the good matches. A bridged covariance is the match covariance plus the window
   covariance (first order: the prior pose it is relative to is that uncertain).
+
+Motion prior (`radar_odom.motion_prior`; on by default, ``motion_prior=False`` turns it off,
+a `MotionPriorConfig` tunes it). From the second estimate of a stream on, each match is fused in
+information form with a constant-velocity prediction from the previous estimates (and with
+external odometry, when `step` is given some): a direction the match leaves unconstrained is
+carried by the prediction, a well-constrained one keeps the match. A match that is implausible
+given the prediction (innovation d² above a χ² gate) is not averaged in: the estimate is the
+prediction, flagged ``"gated"``; after two gated steps in a row the next failing match is taken
+as it is (``"prior_reset"``), so a wrong prediction cannot lock the odometer. An estimate whose
+motion comes mostly from the prior is flagged ``"prior_dominated"``. ``Estimate.pose`` and
+``.covariance`` are the fused values; ``Estimate.measurement`` and ``.measurement_covariance``
+the match as it came from the graph (re-expressed like the pose when bridged). Degenerate
+estimates use the same prediction and never update the velocity. A bridged match is fused over
+its whole interval (from the last good sweep), before it is re-expressed. With
+``motion_prior=False`` and no external odometry the odometer behaves as it did before the prior
+existed (the velocity is still tracked, for degenerate sweeps).
 """
 from __future__ import annotations
 
@@ -34,6 +55,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import ModelMismatchError, StreamError
+from .motion_prior import GATED, PRIOR_DOMINATED, ExternalOdometry, MotionPrior, MotionPriorConfig
+from .motion_prior import compose as compose_relative
+from .motion_prior import fuse as fuse_estimates
 from .onnx_model import GEOMETRY_KEYS, OnnxModel
 from .polar import polar_to_cartesian
 from .scan import RadarScan
@@ -52,17 +76,42 @@ class Estimate:
         covariance: float64[3, 3] over (x, y, yaw), symmetric.
         timestamp_us: the new sweep's timestamp (first azimuth, the Oxford file name).
         flags: empty for a normal match; ``{"degenerate", reason}`` for a prior-only estimate,
-            ``{"bridged"}`` when matched against an older sweep across a degenerate one.
+            ``{"bridged"}`` when matched against an older sweep across a degenerate one;
+            with the motion prior also ``"prior_dominated"`` (the motion comes mostly from the
+            prior), ``"gated"`` (the match was implausible and left out: the pose is the
+            prior's) and ``"prior_reset"`` (a match failing the gate taken as it is, after
+            consecutive gated steps). A degenerate estimate is prior-only by definition and
+            carries no ``"prior_dominated"``.
+        measurement: float64[3] the match as the graph gave it (re-expressed against the
+            previous sweep like ``pose`` when bridged), before the motion prior; for a
+            degenerate sweep the prior-only pose. Defaults to ``pose``.
+        measurement_covariance: float64[3, 3] its covariance. Defaults to ``covariance``.
     """
 
     pose: np.ndarray
     covariance: np.ndarray
     timestamp_us: int
     flags: frozenset = field(default_factory=frozenset)
+    measurement: np.ndarray | None = None
+    measurement_covariance: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.measurement is None:
+            object.__setattr__(self, "measurement", np.array(self.pose, dtype=np.float64))
+        if self.measurement_covariance is None:
+            object.__setattr__(self, "measurement_covariance", np.array(self.covariance, dtype=np.float64))
 
     @property
     def degenerate(self) -> bool:
         return DEGENERATE in self.flags
+
+    @property
+    def prior_dominated(self) -> bool:
+        return PRIOR_DOMINATED in self.flags
+
+    @property
+    def gated(self) -> bool:
+        return GATED in self.flags
 
 
 @dataclass(frozen=True)
@@ -112,12 +161,24 @@ class RadarOdometer:
         max_gap_s: largest allowed time between consecutive sweeps (first azimuths), seconds.
         on_gap: ``"raise"`` (`StreamError`) or ``"reset"`` (start a new stream) on a larger gap.
         min_valid_fraction: below this fraction of valid azimuth rows a sweep is degenerate.
+        motion_prior: True (default: `MotionPriorConfig()`), False (off), or a
+            `MotionPriorConfig`: fuse each match with a constant-velocity prediction (see the
+            module docstring and `radar_odom.motion_prior`).
     """
 
     def __init__(self, model, threads: int | None = None, providers=None, max_gap_s: float = 1.0,
-                 on_gap: str = "raise", min_valid_fraction: float = 0.5):
+                 on_gap: str = "raise", min_valid_fraction: float = 0.5,
+                 motion_prior: bool | MotionPriorConfig = True):
         if on_gap not in ("raise", "reset"):
             raise ValueError(f"on_gap must be 'raise' or 'reset', got {on_gap!r}")
+        if isinstance(motion_prior, MotionPriorConfig):
+            config, use = motion_prior, True
+        elif isinstance(motion_prior, (bool, np.bool_)):
+            config, use = MotionPriorConfig(), bool(motion_prior)
+        else:
+            raise TypeError(f"motion_prior must be True, False or a MotionPriorConfig, got {motion_prior!r}")
+        self._use_prediction = use
+        self._prior = MotionPrior(config)
         self._model = model if isinstance(model, OnnxModel) else OnnxModel(model, threads, providers)
         self.info = self._model.info
         self.profile = self.info.profile
@@ -131,14 +192,21 @@ class RadarOdometer:
     def path(self):
         return self._model.path
 
+    @property
+    def motion_prior(self) -> MotionPriorConfig | None:
+        """The motion prior's configuration, or None when it is off."""
+        return self._prior.config if self._use_prediction else None
+
     def reset(self) -> None:
         """Forget the stream: the next sweep starts a new trajectory at identity."""
         self._poses: list[np.ndarray] = []
         self._stamps: list[int] = []
         self._ref_feed: np.ndarray | None = None  # state (stream form) or sweep input (pair form)
         self._ref_index = -1  # trajectory index of the sweep ``_ref_feed`` belongs to
-        self._last_rel: np.ndarray | None = None  # last relative pose, for the motion prior
-        self._last_dt_s = 0.0
+        self._prior.reset()  # velocity (also tracked with the prior off: degenerate sweeps use it)
+        self._velocity_end_us: int | None = None  # timestamp at the end of the velocity's interval
+        # external odometry from the reference sweep to the latest one, (pose, cov); None if unknown
+        self._odometry_since_ref: tuple | None = None
 
     @property
     def trajectory(self) -> Trajectory:
@@ -147,8 +215,17 @@ class RadarOdometer:
         return Trajectory(np.stack(self._poses), np.asarray(self._stamps, dtype=np.int64))
 
     # --- the step -------------------------------------------------------------------------
-    def step(self, scan: RadarScan) -> Estimate | None:
-        """Add one sweep; return its pose relative to the previous sweep (None for the first)."""
+    def step(self, scan: RadarScan, odometry: ExternalOdometry | dict | None = None) -> Estimate | None:
+        """Add one sweep; return its pose relative to the previous sweep (None for the first).
+
+        Args:
+            scan: the new sweep.
+            odometry: optional `ExternalOdometry` (or a dict of its fields): wheel speed and/or
+                yaw rate over the interval since the previous sweep, fused with the match in
+                information form like the constant-velocity prediction (also with the prior
+                off). Ignored for the first sweep of a stream.
+        """
+        odometry = ExternalOdometry.coerce(odometry)
         self._check_geometry(scan)
         ts = scan.timestamp_us
         if self._stamps:
@@ -174,28 +251,43 @@ class RadarOdometer:
             # recorded at identity but never becomes the reference.
             if problem is None:
                 self._ref_feed = self._run_first(self._sweep_input(scan))
-                self._ref_index = 0
+                self._set_reference(0)
             self._append(np.eye(3), ts)
             return None
         dt_s = (ts - self._stamps[-1]) * 1e-6
+        odo_rel = odometry.relative_pose(dt_s) if odometry is not None else None
         if problem is not None:
-            return self._degenerate(problem, ts, dt_s)
+            return self._degenerate(problem, ts, dt_s, odo_rel)
         x = self._sweep_input(scan)
         if self._ref_feed is None:
             # every earlier sweep of this stream was degenerate: nothing to match against yet,
             # so this one gets the prior and becomes the reference
-            est = self._degenerate("no_reference", ts, dt_s)
+            est = self._degenerate("no_reference", ts, dt_s, odo_rel)
             self._ref_feed = self._run_first(x)
-            self._ref_index = len(self._poses) - 1
+            self._set_reference(len(self._poses) - 1)
             return est
         out = self._run_pair(x)
         if out is None:
-            return self._degenerate("nonfinite", ts, dt_s)
+            return self._degenerate("nonfinite", ts, dt_s, odo_rel)
         pose_ref, cov, new_ref = out
-        return self._accept(pose_ref, cov, new_ref, ts, dt_s)
+        return self._accept(pose_ref, cov, new_ref, ts, dt_s, odo_rel)
 
     # --- pieces ---------------------------------------------------------------------------
     def _check_geometry(self, scan: RadarScan) -> None:
+        """`ModelMismatchError` unless the model can take ``scan`` (see the module docstring)."""
+        if self.profile.input_kind != "polar":
+            need = self.profile.support_radius_m
+            have = scan.max_range_m
+            if have < need - 1e-6:
+                p = self.profile
+                raise ModelMismatchError(
+                    f"{scan.source}: the sweep reaches {have:.2f} m ({scan.num_bins} bins of "
+                    f"{scan.range_resolution_m:g} m), but model {self.path.name} correlates a disc of "
+                    f"radius {need:.2f} m ({p.width_px} px at {p.resolution_m:g} m/px less the "
+                    f"±{p.translation_cells}-cell search window); use a model with a smaller grid "
+                    f"(width_px × resolution_m) or sweeps that reach at least {need:.2f} m"
+                )
+            return
         want = self.info.sweep_geometry
         got = scan.geometry
         bad = [
@@ -253,32 +345,67 @@ class RadarOdometer:
             return None
         return pose, 0.5 * (cov + cov.T), new_ref
 
-    def _accept(self, pose_ref, cov, new_ref, ts, dt_s) -> Estimate:
-        """A good match of the new sweep against the reference sweep."""
-        flags = frozenset()
-        if self._ref_index == len(self._poses) - 1:
-            rel = pose_ref
-            absolute = self._poses[-1] @ se2(*rel)
+    def _set_reference(self, index: int) -> None:
+        self._ref_index = index
+        self._odometry_since_ref = (np.zeros(3), np.zeros((3, 3)))
+
+    def _lead_s(self, start_us: int) -> float:
+        """Seconds from the end of the velocity's interval to ``start_us``."""
+        return 0.0 if self._velocity_end_us is None else max(0.0, (start_us - self._velocity_end_us) * 1e-6)
+
+    def _accept(self, pose_ref, cov, new_ref, ts, dt_s, odo_rel=None) -> Estimate:
+        """A good match of the new sweep against the reference sweep, fused with the prior."""
+        ref_pose, ref_ts = self._poses[self._ref_index], self._stamps[self._ref_index]
+        bridged = self._ref_index != len(self._poses) - 1
+        # external odometry over the match's interval (reference sweep → new sweep)
+        odo_interval = None
+        if odo_rel is not None and self._odometry_since_ref is not None:
+            odo_interval = compose_relative(*self._odometry_since_ref, *odo_rel)
+        flags: set = set()
+        if self._use_prediction or odo_interval is not None:
+            res = self._prior.update(pose_ref, cov, (ts - ref_ts) * 1e-6, self._lead_s(ref_ts),
+                                     odometry=odo_interval, use_prediction=self._use_prediction)
+            fused, fused_cov = res.pose, res.covariance
+            flags |= res.flags
+            if GATED not in res.flags:
+                self._velocity_end_us = ts
+        else:
+            fused, fused_cov = pose_ref, cov
+        absolute = ref_pose @ se2(*fused)
+        if not bridged:
+            rel, meas, meas_cov = fused, pose_ref, cov
         else:  # bridged across degenerate sweeps: re-express against the previous (prior) pose
-            absolute = self._poses[self._ref_index] @ se2(*pose_ref)
-            rel = to_xyyaw(invert(self._poses[-1]) @ absolute)
-            cov = cov + self._prior_cov
-            flags = frozenset({BRIDGED})
+            to_prev = invert(self._poses[-1])
+            rel = to_xyyaw(to_prev @ absolute)
+            meas = to_xyyaw(to_prev @ ref_pose @ se2(*pose_ref))
+            fused_cov = fused_cov + self._prior_cov
+            meas_cov = cov + self._prior_cov
+            flags.add(BRIDGED)
+        if not (self._use_prediction or odo_interval is not None):
+            # no fusion: the velocity follows the reported steps, as it always did
+            self._prior.observe(rel, fused_cov, dt_s)
+            self._velocity_end_us = ts
         self._ref_feed = new_ref
         self._append(absolute, ts)
-        self._ref_index = len(self._poses) - 1
-        self._last_rel, self._last_dt_s = rel, dt_s
-        return Estimate(rel, cov, ts, flags)
+        self._set_reference(len(self._poses) - 1)
+        return Estimate(np.asarray(rel, dtype=np.float64), fused_cov, ts, frozenset(flags),
+                        np.array(meas, dtype=np.float64), np.array(meas_cov, dtype=np.float64))
 
-    def _degenerate(self, reason: str, ts: int, dt_s: float) -> Estimate:
-        """Constant-velocity prior with the search window's covariance; the reference stays."""
-        if self._last_rel is not None and self._last_dt_s > 0:
-            rel = self._last_rel * (dt_s / self._last_dt_s)
-        else:
-            rel = np.zeros(3)
+    def _degenerate(self, reason: str, ts: int, dt_s: float, odo_rel=None) -> Estimate:
+        """Constant-velocity prediction with the search window's covariance; the reference stays.
+
+        With external odometry, that is fused in (information form). The velocity is not updated.
+        """
+        pred = self._prior.predict(dt_s, self._lead_s(self._stamps[-1]))
+        rel = pred[0] if pred is not None else np.zeros(3)
+        cov = self._prior_cov.copy()
+        if odo_rel is not None:
+            rel, cov, _ = fuse_estimates(odo_rel[0], odo_rel[1], rel, cov)
+        if self._odometry_since_ref is not None:
+            self._odometry_since_ref = (compose_relative(*self._odometry_since_ref, *odo_rel)
+                                        if odo_rel is not None else None)
         self._append(self._poses[-1] @ se2(*rel), ts)
-        return Estimate(np.array(rel, dtype=np.float64), self._prior_cov.copy(), ts,
-                        frozenset({DEGENERATE, reason}))
+        return Estimate(np.array(rel, dtype=np.float64), cov, ts, frozenset({DEGENERATE, reason}))
 
     def _append(self, absolute: np.ndarray, ts: int) -> None:
         self._poses.append(absolute)

@@ -6,7 +6,9 @@ drive. Outputs in ``out_dir``:
 - ``trajectory.tum`` / ``trajectory.kitti``: absolute poses of every sweep (first = identity).
 - ``estimates.csv``: one row per step: timestamps of the sweep and its predecessor (µs, the
   Oxford file names), the relative pose (x, y, yaw; Oxford convention), the upper triangle of
-  its covariance, and the flags ("degenerate", "bridged", ...).
+  its covariance, the flags ("degenerate", "bridged", "prior_dominated", "gated", ...), and the
+  raw match before the motion prior (``meas_x_m``, ``meas_y_m``, ``meas_yaw_rad``; equal to the
+  pose when the prior is off).
 - ``trajectory.png``: estimate vs ground truth (when there is one), drawn as a map from above.
   Frames are x forward, y right, z down, so the plot shows (x, −y) and −yaw (z up).
 """
@@ -24,6 +26,7 @@ from .odometer import Estimate, RadarOdometer
 ESTIMATE_COLUMNS = (
     "timestamp_us", "prev_timestamp_us", "x_m", "y_m", "yaw_rad",
     "cov_xx", "cov_xy", "cov_xyaw", "cov_yy", "cov_yyaw", "cov_yawyaw", "flags",
+    "meas_x_m", "meas_y_m", "meas_yaw_rad",
 )
 KITTI_STEP = 4  # frames between segment starts at 4 Hz (radar convention; devkit uses 10)
 KITTI_POOLING = "segments"
@@ -58,7 +61,7 @@ def write_estimates_csv(path, estimates: list[Estimate], prev_timestamps_us) -> 
             w.writerow([
                 est.timestamp_us, int(prev), *(f"{v:.9g}" for v in est.pose),
                 *(f"{v:.9g}" for v in (c[0, 0], c[0, 1], c[0, 2], c[1, 1], c[1, 2], c[2, 2])),
-                "|".join(sorted(est.flags)),
+                "|".join(sorted(est.flags)), *(f"{v:.9g}" for v in est.measurement),
             ])
     return path
 
@@ -168,8 +171,12 @@ def format_metrics(metrics: dict | None, step_errors: dict | None) -> str:
 
 
 def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float = 1.0, show_progress=True,
-                 plot=True, title=None) -> RunResult:
-    """Run ``model`` (path or `RadarOdometer`) over the recording ``seq_dir``; write outputs."""
+                 plot=True, title=None, motion_prior=True) -> RunResult:
+    """Run ``model`` (path or `RadarOdometer`) over the recording ``seq_dir``; write outputs.
+
+    ``motion_prior`` (True, False or a `MotionPriorConfig`) is passed to the `RadarOdometer`
+    built from a path; an odometer given as ``model`` keeps its own setting.
+    """
     import time
 
     from .formats import read_sequence
@@ -177,7 +184,8 @@ def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float = 1.
     from .trajectory import write_kitti, write_tum
 
     seq = read_sequence(seq_dir)
-    odo = model if isinstance(model, RadarOdometer) else RadarOdometer(model, threads=threads, max_gap_s=max_gap_s)
+    odo = model if isinstance(model, RadarOdometer) else RadarOdometer(
+        model, threads=threads, max_gap_s=max_gap_s, motion_prior=motion_prior)
     odo.reset()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -8,7 +8,8 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "export", help=HELP, description=HELP + ". Needs the export extra (torch, onnx, onnxscript)."
     )
-    p.add_argument("checkpoint", help="checkpoint written by `radar-odom train` (.pt)")
+    p.add_argument("checkpoint", help="checkpoint written by `radar-odom train` (.pt), or the name of a "
+                                      "shipped one (cart-0.8, cart-0.4): the weights of the pretrained models")
     p.add_argument("-o", "--output", default=None, help="ONNX file to write (default: CHECKPOINT with .onnx)")
     p.add_argument("--form", choices=("stream", "pair"), default=None,
                    help="stream: (sweep, previous state) -> (pose, covariance, state), masks each sweep once; "
@@ -28,11 +29,19 @@ def run(args) -> int:
     from ..errors import MissingExtraError
 
     try:
+        from radar_odom_export.checkpoint import resolve_checkpoint
         from radar_odom_export.onnx_export import export_checkpoint
     except ImportError as exc:  # torch / onnx missing: say which extra to install
         raise MissingExtraError(getattr(exc, "name", None) or "torch", "export") from exc
-    out = Path(args.output) if args.output else Path(args.checkpoint).with_suffix(".onnx")
-    report = export_checkpoint(args.checkpoint, out, form=args.form, opset=args.opset, verify=not args.no_verify,
+    ckpt = resolve_checkpoint(args.checkpoint)
+    # a shipped name writes NAME.onnx in the working directory, never into the package
+    if args.output:
+        out = Path(args.output)
+    elif Path(args.checkpoint).is_file():
+        out = Path(args.checkpoint).with_suffix(".onnx")
+    else:
+        out = Path(f"{ckpt.stem}.onnx")
+    report = export_checkpoint(ckpt, out, form=args.form, opset=args.opset, verify=not args.no_verify,
                                search=args.search)
     print(report.summary())
     return 0

@@ -18,6 +18,9 @@ def register(subparsers) -> None:
     p.add_argument("--max-gap-s", type=float, default=1.0,
                    help="largest time (s) between consecutive sweeps before the run stops with an error (default: 1.0)")
     p.add_argument("--no-plot", action="store_true", help="do not draw trajectory.png (no matplotlib needed)")
+    p.add_argument("--no-motion-prior", action="store_true",
+                   help="report the raw matches: no fusion with the constant-velocity motion prior "
+                        "(on by default; see radar_odom.motion_prior)")
     p.set_defaults(func=run)
 
 
@@ -30,9 +33,12 @@ def run(args) -> int:
     model = resolve_model(args.model or default_model_name())
     out = Path(args.output) if args.output else Path(f"run-{Path(args.sequence).resolve().name}")
     result = run_sequence(args.sequence, model, out, threads=args.threads, max_gap_s=args.max_gap_s,
-                          plot=not args.no_plot)
+                          plot=not args.no_plot, motion_prior=not args.no_motion_prior)
+    gated = sum(e.gated for e in result.estimates)
+    dominated = sum(e.prior_dominated for e in result.estimates)
+    prior = "motion prior off" if args.no_motion_prior else f"{gated} gated, {dominated} prior-dominated"
     print(f"{len(result.timestamps_us)} sweeps, {len(result.estimates)} estimates "
-          f"({result.num_degenerate} degenerate), {1e3 * result.seconds_per_step:.1f} ms per sweep")
+          f"({result.num_degenerate} degenerate; {prior}), {1e3 * result.seconds_per_step:.1f} ms per sweep")
     text = format_metrics(result.metrics, result.step_errors)
     print(text if text else "no ground truth in this recording: no metrics")
     for kind, path in result.files.items():

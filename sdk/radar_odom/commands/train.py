@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import argparse
 
-HELP = "train the masking network with pose supervision (or the raw / supervised-mask baselines)"
+HELP = "train the masking network with pose supervision (or the raw / cfar / supervised-mask baselines)"
 
 DESCRIPTION = HELP + """.
 
@@ -27,8 +27,11 @@ def register(subparsers) -> None:
     g.add_argument("--profile", default="cart-0.8",
                    help="grid profile name (cart-0.8, cart-0.4, cart-0.2, ...) or a JSON file of GridProfile "
                         "fields (default: %(default)s)")
-    g.add_argument("--masking", choices=("learned", "raw"), default="learned",
-                   help="learned: train the U-Net; raw: mask = 1, the raw-scan baseline, nothing trained "
+    g.add_argument("--masking", choices=("learned", "raw", "cfar"), default="learned",
+                   help="learned: train the U-Net; raw: mask = 1, the raw-scan baseline, nothing trained; "
+                        "cfar: a classical CFAR mask on the normalised sweep (profile fields cfar_window_m, "
+                        "cfar_alpha, cfar_min_level), nothing trained: for a radar without ground truth to "
+                        "train on; needs a profile with input_norm floor-scale, as the named ones have "
                         "(default: %(default)s)")
     g.add_argument("--supervised-masks", action="store_true",
                    help="baseline: train the masks with BCE against the simulator's static labels, no pose loss")
@@ -46,6 +49,11 @@ def register(subparsers) -> None:
     g.add_argument("--scenarios", default="urban,heavy_traffic,open,highway",
                    help="comma-separated simulator scenarios (default: %(default)s)")
     g.add_argument("--frames", type=int, default=200, help="sweeps per simulated drive (default: %(default)s)")
+    g.add_argument("--val-frames", type=int, default=None, help="sweeps per validation drive (default: --frames)")
+    g.add_argument("--sensor", choices=("randomised", "oxford", "radiate"), default="randomised",
+                   help="radar of the simulated training drives: a preset, or randomised: gain, noise floor, "
+                        "speckle, clutter and geometry drawn per drive around both (default: %(default)s); "
+                        "validation drives always use the oxford preset")
     g.add_argument("--workers", type=int, default=2, help="processes simulating drives (default: %(default)s)")
     g = p.add_argument_group("optimisation")
     g.add_argument("--epochs", type=int, default=30, help="maximum epochs (default: %(default)s)")
