@@ -26,7 +26,8 @@ from pathlib import Path
 def label_of(meta: dict) -> str:
     """Human name of a checkpoint's model: the baseline it is, or the learned masks."""
     objective = meta["train"].get("objective", "raw" if meta["masking"] == "raw" else "pose")
-    name = {"raw": "raw scan", "masks": "supervised masks", "pose": "learned masks"}[objective]
+    name = {"raw": "raw scan", "cfar": "CFAR masks (no training)", "masks": "supervised masks",
+            "pose": "learned masks"}[objective]
     p = meta["profile"]
     if (p.unet_base_channels, p.unet_depth) != (8, 5) and objective != "raw":
         name += f" (U-Net {p.unet_base_channels}ch×{p.unet_depth})"

@@ -88,3 +88,68 @@ def test_windowed_fast_export_matches_torch(tmp_path):
         want = step(cur, state)
     got = OnnxModel(report.path, threads=1).run({"cart": cur.numpy(), "prev_state": state.numpy()})
     np.testing.assert_allclose(got["pose"], want[0].numpy(), atol=1e-4)
+
+
+# ------------------------------------------------------------------ parabolic sub-cell peak
+def quadratic_volume(profile, centre_cells):
+    """C = 10 − Σ (index − centre)² over (yaw, x, y) cells: a parabola peaked between cells."""
+    k, n = profile.num_rotations, profile.num_translations
+    kk, ii, jj = torch.meshgrid(torch.arange(k), torch.arange(n), torch.arange(n), indexing="ij")
+    ck, ci, cj = centre_cells
+    return (10.0 - (kk - ck) ** 2 - (ii - ci) ** 2 - (jj - cj) ** 2).float()[None]
+
+
+def test_parabolic_peak_recovers_a_sub_cell_maximum_exactly():
+    from radar_odom_export.softargmax import parabolic_peak
+
+    p = tiny_profile()
+    c = candidate_poses(p, dtype=torch.float64)
+    n = p.num_translations // 2
+    vol = quadratic_volume(p, (2.3, n + 1.4, n - 0.2)).double()
+    pose = parabolic_peak(vol, c[0, :, 0, 0], c[0, 0, :, 1], c[:, 0, 0, 2], p.rotation_step_rad)[0]
+    assert float(pose[0]) == pytest.approx(1.4 * p.resolution_m, abs=1e-6)
+    assert float(pose[1]) == pytest.approx(-0.2 * p.resolution_m, abs=1e-6)
+    assert float(pose[2]) == pytest.approx(0.3 * p.rotation_step_rad, abs=1e-6)
+    # the soft-argmax at a high β snaps to the cell instead
+    snapped, _ = soft_argmax(vol.float(), candidate_poses(p), beta=50.0)
+    assert float(snapped[0, 0]) == pytest.approx(1.0 * p.resolution_m, abs=1e-4)
+
+
+def test_parabolic_peak_on_the_border_or_without_curvature_stays_on_the_cell():
+    from radar_odom_export.softargmax import parabolic_peak
+
+    p = tiny_profile()
+    c = candidate_poses(p)
+    n = p.num_translations
+    vol = quadratic_volume(p, (2.0, n - 1 + 0.4, 3.0))  # the best x cell is the last one
+    pose = parabolic_peak(vol, c[0, :, 0, 0], c[0, 0, :, 1], c[:, 0, 0, 2], p.rotation_step_rad)[0]
+    assert float(pose[0]) == pytest.approx(float(c[0, -1, 0, 0]))
+    flat = torch.zeros(1, p.num_rotations, n, n)
+    flat[0, 2, 3, 3] = 1.0  # neighbours equal on both sides: no sub-cell move
+    pose = parabolic_peak(flat, c[0, :, 0, 0], c[0, 0, :, 1], c[:, 0, 0, 2], p.rotation_step_rad)[0]
+    torch.testing.assert_close(pose, c[2, 3, 3])
+
+
+@pytest.mark.slow
+def test_parabolic_fast_search_matches_the_exhaustive_step_and_its_onnx_export(tmp_path):
+    from radar_odom.onnx_model import OnnxModel
+
+    torch.manual_seed(0)
+    p = tiny_profile(width_px=64, max_translation_m=6.0, rotation_range_rad=math.radians(6),
+                     rotation_step_rad=math.radians(1), pose_estimator="parabolic")
+    model = MaskedCorrelator(p, masking="raw").eval()
+    prev, cur = (torch.from_numpy(a)[None] for a in pair_with_pose((2.3, -1.4, math.radians(2.4)), 64, 1.0, seed=3))
+    full = FastStreamStep(model, FastSearchSettings(coarse_factor=2, band_half_width=6, rotation="bilinear"))
+    with torch.no_grad():
+        state = model.initial_state(prev)
+        want = model.stream_step(cur, state)
+        got = full(cur, state)
+    torch.testing.assert_close(got[0], want[0], atol=1e-5, rtol=1e-5)
+    assert abs(float(want[0][0, 0]) - 2.3) < 0.2 and abs(float(want[0][0, 1]) + 1.4) < 0.2
+    settings = FastSearchSettings(coarse_factor=2, coarse_stride=2, band_half_width=1)
+    report = export_fast(model, tmp_path / "p.onnx", settings, verify=False)
+    step = FastStreamStep(model, settings).eval()
+    with torch.no_grad():
+        want = step(cur, state)
+    got = OnnxModel(report.path, threads=1).run({"cart": cur.numpy(), "prev_state": state.numpy()})
+    np.testing.assert_allclose(got["pose"], want[0].numpy(), atol=1e-4)

@@ -63,7 +63,7 @@ from torch import nn
 from radar_odom.profiles import GridProfile
 
 from .correlation import rotation_grids
-from .softargmax import candidate_weights, peak_window, pose_window, windowed_weights
+from .softargmax import candidate_weights, parabolic_peak, peak_window, pose_window, windowed_weights
 
 TAU = 2.0 * math.pi
 ROTATIONS = ("polar", "bilinear")
@@ -612,6 +612,8 @@ class FastStreamStep(nn.Module):
         window = pose_window(p)
         mask = None if window is None else peak_window(volume, self.offsets_m, self.offsets_m, yaws, *window)
         pose, _ = band_moments(windowed_weights(volume, p.beta_pose, mask), self.offsets_m, yaws)
+        if p.pose_estimator == "parabolic":
+            pose = parabolic_peak(volume, self.offsets_m, self.offsets_m, yaws, p.rotation_step_rad)
         _, cov = band_moments(candidate_weights(volume, p.beta_cov).reshape(volume.shape), self.offsets_m, yaws)
         return pose, cov + self.model.cov_floor
 

@@ -36,7 +36,7 @@ from radar_odom.profiles import GridProfile
 from .cfar import make_cfar
 from .correlation import Rotator, candidate_poses, make_correlation
 from .normalise import make_normaliser
-from .softargmax import pose_window, soft_argmax
+from .softargmax import parabolic_peak, pose_window, soft_argmax
 from .unet import UNet
 
 MASKINGS = ("learned", "raw", "cfar", "external")
@@ -240,8 +240,11 @@ class MaskedCorrelator(nn.Module):
     def pose_from_volume(self, volume: torch.Tensor):
         """(pose [B, 3], covariance [B, 3, 3]) by soft-argmax with the profile's two βs; the
         covariance includes the profile's quantisation floor (`GridProfile.covariance_floor`)."""
-        pose, cov = soft_argmax(volume, self.candidates, self.profile.beta_pose, self.profile.beta_cov,
-                                window=pose_window(self.profile))
+        p = self.profile
+        pose, cov = soft_argmax(volume, self.candidates, p.beta_pose, p.beta_cov, window=pose_window(p))
+        if p.pose_estimator == "parabolic":
+            c = self.candidates
+            pose = parabolic_peak(volume, c[0, :, 0, 0], c[0, 0, :, 1], c[:, 0, 0, 2], p.rotation_step_rad)
         return pose, cov + self.cov_floor
 
     def forward(self, prev, cur, prev_mask=None, cur_mask=None):

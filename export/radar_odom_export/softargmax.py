@@ -105,3 +105,50 @@ def hard_argmax(volume: torch.Tensor, candidates: torch.Tensor) -> torch.Tensor:
     """float[B, 3]: the single best candidate of each volume (no gradient; for evaluation)."""
     best = volume.flatten(1).argmax(dim=1)
     return candidates.reshape(-1, 3)[best]
+
+
+def parabolic_peak(volume: torch.Tensor, x_m: torch.Tensor, y_m: torch.Tensor, yaw_rad: torch.Tensor,
+                   yaw_step_rad: float) -> torch.Tensor:
+    """float[B, 3]: the best candidate refined to sub-cell precision by a parabola through it and
+    its two neighbours along each axis (x, y, yaw) of a volume float[B, K, N, N].
+
+    ``x_m``, ``y_m`` float[N] are the translation axes (dims 2, 3), ``yaw_rad`` float[K] or
+    [B, K] the yaws of dim 1; a yaw neighbour counts only if it lies one ``yaw_step_rad`` away
+    (in the band search the slices need not be contiguous). The offset along an axis is
+    ``(c₋ − c₊) / (2 (c₋ − 2c₀ + c₊))`` cells, clipped to ±½, and 0 where the peak sits on the
+    border or the parabola does not curve down. Unlike the soft-argmax it depends on ratios of
+    differences of C only, so the sweep's content (how many pixels match, hence the height of C)
+    does not change how far between cells the pose can move.
+    """
+    b, k, n, _ = volume.shape
+    flat = volume.flatten(1)
+    best = flat.argmax(dim=1, keepdim=True)  # [B, 1]
+    kk = torch.div(best, n * n, rounding_mode="floor")
+    rest = best - kk * (n * n)
+    ii = torch.div(rest, n, rounding_mode="floor")
+    jj = rest - ii * n
+    c0 = torch.gather(flat, 1, best)
+    size = k * n * n
+
+    def offset(stride: int, valid: torch.Tensor) -> torch.Tensor:
+        lo = torch.gather(flat, 1, (best - stride).clamp(0, size - 1))
+        hi = torch.gather(flat, 1, (best + stride).clamp(0, size - 1))
+        den = lo - 2 * c0 + hi
+        ok = valid & (den < 0)
+        safe = torch.where(ok, den, -torch.ones_like(den))
+        return torch.where(ok, (0.5 * (lo - hi) / safe).clamp(-0.5, 0.5), torch.zeros_like(den))
+
+    yaws = yaw_rad if yaw_rad.dim() == 2 else yaw_rad.unsqueeze(0).expand(b, k)
+    y0 = torch.gather(yaws, 1, kk)
+    y_lo = torch.gather(yaws, 1, (kk - 1).clamp(0, k - 1))
+    y_hi = torch.gather(yaws, 1, (kk + 1).clamp(0, k - 1))
+    tol = 1e-3 * yaw_step_rad
+    k_ok = ((kk > 0) & (kk < k - 1) & ((y0 - y_lo - yaw_step_rad).abs() < tol)
+            & ((y_hi - y0 - yaw_step_rad).abs() < tol))
+    o_i = offset(n, (ii > 0) & (ii < n - 1))
+    o_j = offset(1, (jj > 0) & (jj < n - 1))
+    o_k = offset(n * n, k_ok)
+    dx = x_m[1] - x_m[0]
+    dy = y_m[1] - y_m[0]
+    return torch.cat([x_m[ii] + o_i * dx, y_m[jj] + o_j * dy, y0 + o_k * yaw_step_rad], dim=1)
+

@@ -60,6 +60,12 @@ class GridProfile:
     # which pulls the pose towards the window centre (zero motion) whenever the volume is not
     # sharply peaked, and averages the modes of an ambiguous one.
     pose_window_cells: int = 0
+    # How the pose is read off the volume: "soft-argmax" (paper eq. 3 with beta_pose, within the
+    # pose window) or "parabolic": the best candidate refined by a parabola through its
+    # neighbours on each axis, which keeps sub-cell precision however tall the correlation peak
+    # is (a scene with much structure makes β·C so peaked that the soft-argmax snaps to a cell).
+    # The covariance is the beta_cov soft-argmax moment either way.
+    pose_estimator: str = "soft-argmax"
     # Input normalisation (module docstring): "none" | "floor-scale". The floor is this quantile
     # over azimuth of each range ring, the scale this quantile of the floor-free image over the
     # support disc; the normalised image is clipped at norm_clip (0: no clip).
@@ -89,6 +95,8 @@ class GridProfile:
             raise ValueError(
                 f"profile {self.name!r}: width_px must be divisible by 2**unet_depth × mask_downsample"
             )
+        if self.pose_estimator not in ("soft-argmax", "parabolic"):
+            raise ValueError(f"profile {self.name!r}: pose_estimator must be 'soft-argmax' or 'parabolic'")
         if self.input_norm not in INPUT_NORMS:
             raise ValueError(f"profile {self.name!r}: input_norm must be one of {INPUT_NORMS}")
         if not (0 < self.norm_floor_quantile <= 1 and 0 < self.norm_scale_quantile <= 1 and self.norm_clip >= 0):
