@@ -463,6 +463,18 @@ def test_calibrate_checkpoint_writes_beta_cov(tmp_path):
     assert load_checkpoint(path)[1]["profile"].beta_cov == 1.0  # -o leaves the input alone
 
 
+def test_calibrate_sets_the_pose_estimator_and_reports_each_scenario(tmp_path):
+    drives = [D.toy_drive(TINY, 30, s, noise=0.3, name=f"{sc}-{s}") for s, sc in ((21, "urban"), (22, "open"))]
+    path = save_checkpoint(tmp_path / "raw.pt", MaskedCorrelator(TINY, masking="raw"), "raw")
+    res = cal.calibrate_checkpoint(path, drives, output=tmp_path / "cal.pt", pose_estimator="parabolic")
+    assert 2.7 <= res.mean_d2 <= 3.3
+    rows = {ln.split("|")[1].strip(): ln for ln in res.scenario_table.splitlines()[2:]}
+    assert set(rows) == {"urban", "open"} and all("| 29 |" in r for r in rows.values())
+    _, meta = load_checkpoint(tmp_path / "cal.pt")
+    assert meta["profile"].pose_estimator == "parabolic"
+    assert meta["calibration"]["per_scenario"] == res.scenario_table
+
+
 # ----------------------------------------------------------------------------- evaluation
 def test_streamed_estimates_equal_the_pair_form():
     from radar_odom_export.evaluate import estimate_drive

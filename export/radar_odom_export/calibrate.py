@@ -28,7 +28,17 @@ from radar_odom import metrics
 from radar_odom.errors import RadarOdomError
 from radar_odom.profiles import GridProfile
 
-from .softargmax import candidate_weights, weighted_covariance, weighted_mean
+from .softargmax import (candidate_weights, parabolic_peak, peak_window, pose_window, weighted_covariance,
+                         weighted_mean, windowed_weights)
+
+
+def _pose_weights(volume: torch.Tensor, beta: float, candidates: torch.Tensor, window) -> torch.Tensor:
+    """float[B, S] pose weights as `MaskedCorrelator.pose_from_volume` uses them."""
+    if window is None:
+        return candidate_weights(volume, beta)
+    c = candidates.to(volume.dtype)
+    mask = peak_window(volume, c[0, :, 0, 0], c[0, 0, :, 1], c[:, 0, 0, 2], *window)
+    return windowed_weights(volume, beta, mask).flatten(1)
 
 TARGET_D2 = 3.0
 BAND = (2.7, 3.3)
@@ -45,6 +55,7 @@ class CalibrationResult:
     mean_d2: float
     table: list[tuple[float, float]]  # (beta, mean d²), sorted by beta
     pairs: int
+    scenario_table: str = ""
 
     def to_dict(self) -> dict:
         return {"beta_cov": self.beta_cov, "mean_d2": self.mean_d2, "pairs": self.pairs,
@@ -74,8 +85,9 @@ def mahalanobis_sq(err: np.ndarray, cov: np.ndarray, jitter_diag: np.ndarray | N
 # ----------------------------------------------------------------------------- volumes
 @torch.no_grad()
 def collect_volumes(model, drives: Sequence, batch: int = 8, max_pairs: int | None = None,
-                    progress_desc: str | None = "correlation volumes"):
-    """(volumes float32[P, K, N, N], gt float64[P, 3]) over the pairs of ``drives``."""
+                    progress_desc: str | None = "correlation volumes", with_names: bool = False):
+    """(volumes float32[P, K, N, N], gt float64[P, 3]) over the pairs of ``drives`` (and, with
+    ``with_names``, each pair's drive name as a third item)."""
     from radar_odom._progress import progress
 
     pairs = [(d, k) for d in drives for k in range(d.num_pairs)]
@@ -93,7 +105,8 @@ def collect_volumes(model, drives: Sequence, batch: int = 8, max_pairs: int | No
         gts.append(np.stack([d.poses_rel[k] for d, k in chunk]))
         bar.update(len(chunk))
     bar.close()
-    return torch.cat(vols), np.concatenate(gts).astype(np.float64)
+    out = (torch.cat(vols), np.concatenate(gts).astype(np.float64))
+    return (*out, [d.name for d, _ in pairs]) if with_names else out
 
 
 class D2Curve:
@@ -106,8 +119,14 @@ class D2Curve:
         self.chunk = chunk
         self.jitter = covariance_jitter(profile)
         self.floor = np.diag(profile.covariance_floor)  # as MaskedCorrelator.pose_from_volume adds
-        means = [weighted_mean(candidate_weights(v.double(), profile.beta_pose), self.flat)
-                 for v in volumes.split(chunk)]
+        if profile.pose_estimator == "parabolic":  # the pose the model reports (see softargmax)
+            c = candidates.to(torch.float64)
+            means = [parabolic_peak(v.double(), c[0, :, 0, 0], c[0, 0, :, 1], c[:, 0, 0, 2], profile.rotation_step_rad)
+                     for v in volumes.split(chunk)]
+        else:
+            window = pose_window(profile)
+            means = [weighted_mean(_pose_weights(v.double(), profile.beta_pose, candidates, window), self.flat)
+                     for v in volumes.split(chunk)]
         self.mean = torch.cat(means).numpy()
         self.err = pose_errors(gt_xyyaw, self.mean)
 
@@ -203,22 +222,41 @@ def format_table(table, chosen: float | None = None) -> str:
 
 
 # ----------------------------------------------------------------------------- checkpoint
+def scenario_d2_table(curve: "D2Curve", names: Sequence[str], beta: float) -> str:
+    """Markdown: mean / median d² and translation error per scenario (drive name prefix) at β."""
+    d2 = curve.d2(beta)
+    scen = np.array([n.rsplit("-", 1)[0] for n in names])
+    lines = ["| scenario | pairs | mean d² | median d² | mean translation error m |", "|---|---:|---:|---:|---:|"]
+    for sc in dict.fromkeys(scen):
+        sel = scen == sc
+        lines.append(f"| {sc} | {int(sel.sum())} | {d2[sel].mean():.3g} | {np.median(d2[sel]):.3g} "
+                     f"| {np.hypot(*curve.err[sel, :2].T).mean():.3f} |")
+    return "\n".join(lines)
+
+
 def calibrate_checkpoint(path, drives, output=None, batch: int = 8, max_pairs: int | None = 2000,
-                         info: dict | None = None) -> CalibrationResult:
-    """Calibrate a checkpoint's ``beta_cov`` on held-out ``drives``; write it in place or to ``output``."""
+                         info: dict | None = None, pose_estimator: str | None = None) -> CalibrationResult:
+    """Calibrate a checkpoint's ``beta_cov`` on held-out ``drives``; write it in place or to ``output``.
+
+    ``pose_estimator`` ("soft-argmax" | "parabolic"), if given, is set in the profile first (the
+    covariance is calibrated against the errors of the pose the model will report)."""
     from dataclasses import asdict
 
     from .checkpoint import model_from_dict, read_checkpoint_dict, write_checkpoint_dict
 
     ckpt = read_checkpoint_dict(path)
+    if pose_estimator:
+        ckpt["profile"] = {**ckpt["profile"], "pose_estimator": pose_estimator}
     model = model_from_dict(ckpt, source=str(path))
-    volumes, gt = collect_volumes(model, drives, batch=batch, max_pairs=max_pairs)
+    volumes, gt, names = collect_volumes(model, drives, batch=batch, max_pairs=max_pairs, with_names=True)
     curve = D2Curve(volumes, gt, model.candidates, model.profile)
     result = calibrate_beta(curve, model.profile.beta_pose)
     result.pairs = int(len(gt))
+    result.scenario_table = scenario_d2_table(curve, names, result.beta_cov)
     profile = model.profile.with_(beta_cov=result.beta_cov)
     ckpt["profile"] = asdict(profile)
-    ckpt["calibration"] = {**result.to_dict(), **(info or {}), "drives": [d.name for d in drives]}
+    ckpt["calibration"] = {**result.to_dict(), **(info or {}), "drives": [d.name for d in drives],
+                           "per_scenario": result.scenario_table}
     write_checkpoint_dict(output or path, ckpt)
     return result
 
@@ -248,8 +286,10 @@ def run_from_args(args) -> CalibrationResult:
                               with_labels=False, desc="calibration drives")
         info.update(sim_seeds=seeds, scenarios=scenarios, frames=args.frames)
     result = calibrate_checkpoint(args.checkpoint, drives, output=args.output, batch=args.batch,
-                                  max_pairs=args.max_pairs, info=info)
+                                  max_pairs=args.max_pairs, info=info,
+                                  pose_estimator=getattr(args, "pose_estimator", None))
     print(format_table(result.table, chosen=result.beta_cov))
+    print("\nper scenario at the chosen β:\n" + result.scenario_table)
     print(f"\nbeta_cov = {result.beta_cov:.4g} -> mean d² = {result.mean_d2:.3f} over {result.pairs} pairs "
           f"(beta_pose = {profile.beta_pose:g}); written to {args.output or args.checkpoint}")
     return result

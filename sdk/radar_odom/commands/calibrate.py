@@ -25,6 +25,9 @@ def register(subparsers) -> None:
     p.add_argument("--scenarios", default="urban,heavy_traffic,open,highway",
                    help="comma-separated simulator scenarios (default: %(default)s)")
     p.add_argument("--frames", type=int, default=120, help="sweeps per simulated drive (default: %(default)s)")
+    p.add_argument("--pose-estimator", choices=("soft-argmax", "parabolic"), default=None,
+                   help="set how the model reads its pose off the volume before calibrating (default: keep the "
+                        "checkpoint's): soft-argmax (paper eq. 3 at beta_pose) or parabolic (sub-cell peak fit)")
     p.add_argument("--max-pairs", type=int, default=2000, help="use at most this many pairs, evenly spread")
     p.add_argument("--batch", type=int, default=8, help="pairs per forward pass (default: %(default)s)")
     p.add_argument("--workers", type=int, default=2, help="processes simulating drives (default: %(default)s)")
