@@ -404,9 +404,14 @@ def train(cfg: TrainConfig, train_drives: Sequence[Drive], val_drives: Sequence[
         st = torch.load(sp, map_location="cpu", weights_only=True)
         if not isinstance(st, dict) or st.get("format") != STATE_FORMAT:
             raise CheckpointError(f"{sp}: not a radar-odom training state ({STATE_FORMAT})")
-        if st["profile"] != asdict(cfg.profile) or st["objective"] != cfg.objective:
+        # compared as profiles, so a state saved before GridProfile gained a field (read back with
+        # that field's default) still resumes; any field that differs refuses, and is named
+        saved = GridProfile.from_dict(st["profile"])
+        if saved != cfg.profile or st["objective"] != cfg.objective:
+            diff = [f for f, v in asdict(cfg.profile).items() if asdict(saved).get(f) != v]
             raise CheckpointError(
-                f"{sp}: was made for profile {st['profile'].get('name')!r} / objective {st['objective']!r}; "
+                f"{sp}: was made for profile {st['profile'].get('name')!r} / objective {st['objective']!r} "
+                f"(differing profile fields: {', '.join(diff) or 'none'}); "
                 f"this run asks for {cfg.profile.name!r} / {cfg.objective!r} — resume with the same settings"
             )
         model.load_state_dict(st["model"])
