@@ -681,6 +681,7 @@ def export_fast(model, path, settings: FastSearchSettings | None = None, *, opse
                              tuple(inputs[1].shape))
     meta["radar_odom.search"] = json.dumps({"kind": "coarse_to_fine", **asdict(step.settings),
                                             "band_rotations": step.band}, sort_keys=True)
+    ox.strip_node_metadata(proto)
     del proto.metadata_props[:]
     for k, v in meta.items():
         proto.metadata_props.add(key=k, value=v)

@@ -236,6 +236,22 @@ class ExportReport:
         return "\n".join(lines)
 
 
+def strip_node_metadata(proto) -> int:
+    """Delete every node's ``metadata_props`` (the dynamo exporter's per-node stack traces, FX
+    names and scopes) in the graph, its subgraphs and local functions; returns how many entries
+    went. They hold the build machine's file paths and source lines and are a third of a shipped
+    file's metadata; nothing reads them at run time."""
+    removed = 0
+    graphs = [proto.graph] + [f for f in proto.functions]
+    for node in walk_nodes([n for g in graphs for n in g.node]):
+        removed += len(node.metadata_props)
+        del node.metadata_props[:]
+    for f in proto.functions:
+        del f.metadata_props[:]
+    del proto.graph.metadata_props[:]
+    return removed
+
+
 def build_metadata(model, form: str, opset: int, exporter: str, masking: str, training_data, state_shape) -> dict:
     """The ``radar_odom.*`` metadata (see `radar_odom.onnx_model`) for ``model``."""
     inputs, outputs = io_names(model, form)
@@ -261,6 +277,14 @@ def build_metadata(model, form: str, opset: int, exporter: str, masking: str, tr
         meta["radar_odom.polar_input"] = json.dumps(
             {"num_bins": model.to_cartesian.num_bins, "bin_factor": model.to_cartesian.bin_factor}
         )
+    # a digest of the profile text: the runtime refuses a profile edited by hand (a changed
+    # resolution_m keeps every tensor shape, so nothing else would notice)
+    meta["radar_odom.profile_sha256"] = profile_digest(meta["radar_odom.profile"])
+    # the runtime's schema (required keys, types, ranges, profile vs input shape) checks what is written
+    try:
+        ModelInfo.from_metadata(meta, source="export")
+    except RadarOdomError as exc:
+        raise ExportError(f"the metadata for this model would be refused at run time: {exc}") from None
     return meta
 
 
