@@ -111,3 +111,85 @@ def test_demo_without_shipped_models_is_a_clear_error(tmp_path, capsys, monkeypa
     monkeypatch.setattr(pretrained, "MODELS_DIR", tmp_path / "none")
     assert main(["demo", "--frames", "3", "-o", str(tmp_path / "d")]) == 1
     assert "ships no pretrained models" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------- bad input (issue 12)
+def copy_drive(drive, dest):
+    import shutil
+
+    shutil.copytree(drive, dest)
+    return dest
+
+
+def test_run_writes_ground_truth_beside_the_estimate(model_path, drive, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["run", str(drive), "--model", str(model_path), "-o", str(out), "--no-plot"]) == 0
+    ts_est, _ = read_tum(out / "trajectory.tum")
+    ts_gt, gt = read_tum(out / "ground_truth.tum")
+    assert np.array_equal(ts_gt, ts_est)  # evo pairs them by time
+    seq = read_sequence(drive)
+    np.testing.assert_allclose(gt, seq.gt_absolute(), atol=1e-9)
+    np.testing.assert_allclose(read_kitti(out / "ground_truth.kitti"), seq.gt_absolute(), atol=1e-9)
+    assert "gt_tum: " in capsys.readouterr().out
+
+
+def test_run_skips_a_corrupt_sweep_bridges_it_and_exits_3(model_path, drive, tmp_path, capsys):
+    rec = copy_drive(drive, tmp_path / "rec")
+    bad = sorted((rec / "radar").glob("*.png"))[3]
+    bad.write_bytes(bad.read_bytes()[:200])  # truncated
+    out = tmp_path / "out"
+    assert main(["run", str(rec), "--model", str(model_path), "-o", str(out), "--no-plot"]) == 3
+    captured = capsys.readouterr()
+    assert f"skipped sweep 3 (unreadable): {bad}" in captured.err and "exit status 3" in captured.err
+    for name in ("trajectory.tum", "trajectory.kitti", "estimates.csv", "skipped.csv", "ground_truth.tum"):
+        assert (out / name).stat().st_size > 0, name
+    ts, rel, covs, flags = read_estimates_csv(out / "estimates.csv")
+    assert len(ts) == FRAMES - 1 and np.all(np.isfinite(rel))  # one pose per sweep, none lost
+    assert {"degenerate", "unreadable"} <= flags[2]  # sweep 3 = estimate 2
+    assert "bridged" in flags[3]
+    assert covs[2][0, 0] > 1.0  # its covariance says it knows nothing
+    assert "metrics" not in captured.out or "per step" in captured.out
+
+
+def test_run_on_error_stop_writes_what_it_has_and_exits_1(model_path, drive, tmp_path, capsys):
+    rec = copy_drive(drive, tmp_path / "rec")
+    bad = sorted((rec / "radar").glob("*.png"))[3]
+    bad.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(100))
+    out = tmp_path / "out"
+    assert main(["run", str(rec), "--model", str(model_path), "-o", str(out), "--no-plot",
+                 "--on-error", "stop"]) == 1
+    err = capsys.readouterr().err
+    errors = [ln for ln in err.splitlines() if ln.startswith("radar-odom run: error: ")]
+    assert len(errors) == 1 and "Traceback" not in err  # (the rest is the progress bar)
+    assert "stopped at sweep 3 of 6" in errors[0] and str(bad) in errors[0]
+    ts, _ = read_tum(out / "trajectory.tum")
+    assert len(ts) == 3
+
+
+def test_run_reports_bad_models_and_outputs_in_one_line(model_path, drive, tmp_path, capsys):
+    corrupt = tmp_path / "corrupt.onnx"
+    corrupt.write_bytes(model_path.read_bytes()[:5000])
+    assert main(["run", str(drive), "--model", str(corrupt), "-o", str(tmp_path / "o")]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("radar-odom run: error: ") and err.count("\n") == 1 and "corrupt.onnx" in err
+    a_file = tmp_path / "taken"
+    a_file.write_text("x")
+    assert main(["run", str(drive), "--model", str(model_path), "-o", str(a_file)]) == 1
+    err = capsys.readouterr().err
+    assert "exists and is not a folder" in err and err.count("\n") == 1
+    assert main(["run", str(drive), "--model", "../../x", "-o", str(tmp_path / "o")]) == 1
+    assert "not a model name" in capsys.readouterr().err
+
+
+def test_run_warns_about_bad_ground_truth_rows_by_line(model_path, drive, tmp_path, capsys):
+    rec = copy_drive(drive, tmp_path / "rec")
+    gt = rec / "gt" / "radar_odometry.csv"
+    lines = gt.read_text().splitlines()
+    parts = lines[2].split(",")
+    parts[2] = "nan"
+    lines[2] = ",".join(parts)
+    gt.write_text("\n".join(lines) + "\n")
+    assert main(["run", str(rec), "--model", str(model_path), "-o", str(tmp_path / "o"), "--no-plot"]) == 0
+    captured = capsys.readouterr()
+    assert "warning:" in captured.err and "line 3" in captured.err
+    assert f"1 of {FRAMES - 1} steps lack ground truth" in captured.out

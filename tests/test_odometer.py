@@ -395,8 +395,11 @@ def test_sweep_problem_thresholds():
     half[: len(half) // 2 + 2] = 1.0
     assert sweep_problem(with_power(base, power=half)) == "saturated"
     valid = np.ones(base.num_azimuths, bool)
-    valid[: base.num_azimuths // 2 - 1] = False  # just over half valid: still usable
-    assert sweep_problem(with_power(base, valid=valid)) is None
+    valid[1: base.num_azimuths - 2: 2] = False  # just over half valid, spread over the turn: usable
+    assert valid.mean() > 0.5 and sweep_problem(with_power(base, valid=valid)) is None
+    valid = np.ones(base.num_azimuths, bool)
+    valid[: base.num_azimuths // 2 - 1] = False  # just over half valid, but over half a turn only
+    assert sweep_problem(with_power(base, valid=valid)) == "partial_coverage"
 
 
 def test_a_foreign_onnx_file_is_refused(tmp_path):

@@ -46,7 +46,7 @@ from torch import nn
 
 import radar_odom
 from radar_odom.errors import ExportError, RadarOdomError
-from radar_odom.onnx_model import FORMAT
+from radar_odom.onnx_model import FORMAT, ModelInfo, profile_digest
 
 from .correlation import Rotator, make_correlation, rotate_images, rotation_grids
 
@@ -341,6 +341,7 @@ def export_model(model, path, *, form: str = "stream", opset: int = DEFAULT_OPSE
     if form == "stream":
         state_shape = tuple(inputs[1].shape)
     meta = build_metadata(m, form, opset, used, masking or m.masking, training_data, state_shape)
+    strip_node_metadata(proto)
     del proto.metadata_props[:]
     for k, v in meta.items():
         proto.metadata_props.add(key=k, value=v)

@@ -32,3 +32,38 @@ class MissingExtraError(RadarOdomError, ImportError):
         super().__init__(
             f"{module!r} is needed for this; install it with: pip install \"radar-odom[{extra}]\""
         )
+
+
+class InvalidModelError(ModelMismatchError):
+    """A model file is unusable: truncated or corrupt ONNX, metadata that is missing, malformed,
+    of the wrong type or inconsistent with the graph's real inputs and outputs."""
+
+
+class ModelNotFoundError(RadarOdomError, FileNotFoundError):
+    """A model path that does not exist (a FileNotFoundError that is also a `RadarOdomError`)."""
+
+
+class ConfigError(RadarOdomError, ValueError):
+    """An argument value the SDK cannot work with (NaN, out of range, unknown choice)."""
+
+
+class OutputError(RadarOdomError, OSError):
+    """An output path cannot be written (e.g. ``-o`` names an existing file)."""
+
+
+class RunAborted(RadarOdomError):
+    """``run_sequence(..., on_error="stop")`` met a sweep it could not use.
+
+    ``result`` holds what was computed (and written) before that sweep; ``cause`` the error.
+    """
+
+    def __init__(self, message: str, result=None, cause: Exception | None = None):
+        super().__init__(message)
+        self.result = result
+        self.cause = cause
+
+
+class GroundTruthWarning(UserWarning):
+    """Ground-truth rows that were left out (non-finite values, conflicting duplicates); the
+    message names the file and line numbers. The pairs they would have covered have no ground
+    truth (NaN), the rest is used as it is."""

@@ -5,12 +5,15 @@
 """
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
-from .errors import RadarOdomError
+from .errors import ModelNotFoundError, RadarOdomError
 
 MODELS_DIR = Path(__file__).resolve().parent / "models"
 DEFAULT_MODEL = "cart-0.4"  # what `radar-odom demo` and `run` use without --model
+# a model name: letters, digits, '.', '_', '-', not starting with '.' (so never a path or '..')
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,127}")
 
 
 class UnknownModelError(RadarOdomError, KeyError):
@@ -27,8 +30,20 @@ def pretrained_names(models_dir: Path | None = None) -> list[str]:
 
 
 def pretrained(name: str, models_dir: Path | None = None) -> str:
-    """Path (str) of the shipped model ``name``; `UnknownModelError` (a KeyError) lists the names."""
+    """Path (str) of the shipped model ``name``; `UnknownModelError` (a KeyError) lists the names.
+
+    ``name`` is a name, never a path: anything but letters, digits, ``.``, ``_`` and ``-``
+    (a path separator, ``..``, a leading dot) is refused, so no file outside the package's
+    models folder can be reached through it.
+    """
     d = Path(models_dir) if models_dir else MODELS_DIR
+    if not isinstance(name, str) or not _NAME.fullmatch(name) or ".." in name:
+        names = pretrained_names(d)
+        shipped = ", ".join(names) if names else "none (this installation ships no models)"
+        raise UnknownModelError(
+            f"{name!r} is not a model name: pretrained() takes the name of a shipped model "
+            f"({shipped}), not a path; give a path to RadarOdometer directly to load another file"
+        )
     path = d / f"{name}.onnx"
     if not path.is_file():
         names = pretrained_names(d)
@@ -45,7 +60,7 @@ def resolve_model(spec: str) -> str:
     p = Path(spec)
     if p.suffix == ".onnx" or p.exists():
         if not p.is_file():
-            raise RadarOdomError(f"{spec}: no such model file")
+            raise ModelNotFoundError(f"{spec}: no such model file")
         return str(p)
     return pretrained(spec)
 

@@ -11,6 +11,22 @@ drive. Outputs in ``out_dir``:
   pose when the prior is off).
 - ``trajectory.png``: estimate vs ground truth (when there is one), drawn as a map from above.
   Frames are x forward, y right, z down, so the plot shows (x, −y) and −yaw (z up).
+- ``ground_truth.tum`` / ``ground_truth.kitti`` (when the recording has ground truth): the same
+  sweeps' ground-truth poses in the same frame, so ``evo_ape tum ground_truth.tum
+  trajectory.tum`` (or ``evo_rpe kitti ...``) compares them directly. Where a pair lacks ground
+  truth the chained poses after it are unknown: the TUM file then holds the poses up to the first
+  missing pair, and the KITTI file (which has no timestamps) is not written.
+- ``skipped.csv`` (only when a sweep was skipped): index, file, reason and message of each.
+
+Bad sweeps (``on_error``): a sweep that cannot be read (`ScanFormatError`), or whose own
+timestamp is garbage (its first azimuth's time disagrees with its file name by more than
+``NAME_TIME_TOLERANCE_S`` and breaks the time order), is *skipped* by default: reported in
+`RunResult.skipped`, given a prior-only pose flagged ``degenerate`` + ``unreadable`` /
+``bad_timestamp`` (`RadarOdometer.skip`), the next sweep bridged across it, every output still
+written. ``on_error="stop"`` writes the outputs for the sweeps before it and raises `RunAborted`.
+Errors that are not one sweep's fault always stop the run: a time gap beyond ``max_gap_s``
+(`RunAborted`, after writing the outputs so far) and a model that does not fit the radar
+(`ModelMismatchError`).
 """
 from __future__ import annotations
 
@@ -21,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from ._progress import progress
+from .errors import ConfigError, OutputError, RunAborted, ScanFormatError, StreamError
 from .odometer import Estimate, RadarOdometer
 
 ESTIMATE_COLUMNS = (
@@ -30,6 +47,10 @@ ESTIMATE_COLUMNS = (
 )
 KITTI_STEP = 4  # frames between segment starts at 4 Hz (radar convention; devkit uses 10)
 KITTI_POOLING = "segments"
+ON_ERROR = ("skip", "stop")
+# a sweep whose first-azimuth time is further than this from its file name's time has a corrupt
+# header (names are the first (Oxford, RADIATE), middle (Boreas) or last (MulRan) azimuth's time)
+NAME_TIME_TOLERANCE_S = 1.0
 
 
 @dataclass
@@ -44,6 +65,12 @@ class RunResult:
     step_errors: dict | None = None  # mean per-step relative errors when KITTI has no segment
     files: dict = field(default_factory=dict)
     seconds_per_step: float = float("nan")
+    skipped: list = field(default_factory=list)  # dicts: index, path, reason, message
+
+    @property
+    def complete(self) -> bool:
+        """True when no sweep was skipped."""
+        return not self.skipped
 
     @property
     def num_degenerate(self) -> int:
@@ -119,22 +146,29 @@ def plot_trajectory(path, est_poses: np.ndarray, gt_poses: np.ndarray | None, ti
 
 
 def evaluate(gt_poses: np.ndarray, est_poses: np.ndarray, estimates=None,
-             jitter_diag=None) -> tuple[dict | None, dict]:
+             jitter_diag=None, gt_relative=None) -> tuple[dict | None, dict]:
     """(KITTI metrics, or None when no segment fits; per-step relative errors).
 
     The per-step summary also holds the mean Mahalanobis d² of the non-degenerate estimates
     (≈ 3 when the covariance is calibrated) when ``estimates`` are given, computed with
     ``jitter_diag`` added to each covariance as in calibration (`metrics.covariance_jitter`). Steps without
-    ground truth (NaN) are left out of the per-step errors; any of them voids the KITTI metric.
+    ground truth (NaN) are left out of the per-step errors (``steps_without_gt`` counts them);
+    any of them voids the KITTI metric. ``gt_relative`` (float[N−1, 3], the sequence's own
+    relative ground truth) is used for the per-step errors when given, so one missing pair costs
+    one step, not every step after it (chained absolute poses are unknown past a gap).
     """
     from .metrics import kitti_metrics, mahalanobis_sq, relative_pose_errors
     from .se2 import relative_from_absolute
 
-    gt_rel = relative_from_absolute(gt_poses)
+    gt_rel = relative_from_absolute(gt_poses) if gt_relative is None else np.asarray(gt_relative, dtype=np.float64)
     est_rel = relative_from_absolute(est_poses)
     ok = np.all(np.isfinite(gt_rel), axis=1)
-    errors = relative_pose_errors(gt_rel[ok], est_rel[ok])
-    step_errors = {k: v for k, v in errors.items() if not isinstance(v, np.ndarray)}
+    step_errors = {"steps": int(ok.sum())}
+    if not ok.all():
+        step_errors["steps_without_gt"] = int((~ok).sum())
+    if ok.any():
+        errors = relative_pose_errors(gt_rel[ok], est_rel[ok])
+        step_errors.update({k: v for k, v in errors.items() if not isinstance(v, np.ndarray)})
     if estimates is not None and len(estimates) == len(gt_rel):
         good = ok & np.array([not e.degenerate for e in estimates], dtype=bool)
         if good.any():
@@ -145,7 +179,7 @@ def evaluate(gt_poses: np.ndarray, est_poses: np.ndarray, estimates=None,
             except ValueError:  # a singular covariance (a hard-argmax-like β): no d²
                 pass
     metrics = None
-    if ok.all():
+    if ok.all() and np.all(np.isfinite(gt_poses)):
         try:
             metrics = kitti_metrics(gt_poses, est_poses, step=KITTI_STEP, pooling=KITTI_POOLING)
         except ValueError:  # too short for even the shortest segment
@@ -162,6 +196,12 @@ def format_metrics(metrics: dict | None, step_errors: dict | None) -> str:
             f"{metrics.get('pooling', KITTI_POOLING)}, {metrics.get('num_segments', '?')} segments): "
             f"translation {metrics['translation_percent']:.3f} %, rotation {metrics['rotation_deg_per_m']:.5f} deg/m"
         )
+    elif step_errors is not None and step_errors.get("steps_without_gt"):
+        missing, used = step_errors["steps_without_gt"], step_errors.get("steps", 0)
+        lines.append(
+            f"KITTI odometry: not computed, {missing} of {missing + used} steps lack ground truth "
+            f"(see the warnings); per-step relative errors over the other {used} instead"
+        )
     elif step_errors is not None:
         lines.append("KITTI odometry: drive too short for a 100 m segment; per-step relative errors instead")
     if step_errors is not None:
@@ -170,49 +210,141 @@ def format_metrics(metrics: dict | None, step_errors: dict | None) -> str:
     return "\n".join(lines)
 
 
+def prepare_output_dir(out_dir) -> Path:
+    """Create ``out_dir`` (and parents); `OutputError` if it is a file or cannot be created."""
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise OutputError(f"{out_dir}: exists and is not a folder; give -o a folder (new or existing)")
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"{out_dir}: cannot create the output folder ({exc.strerror or exc})") from None
+    return out_dir
+
+
+def write_skipped_csv(path, skipped: list[dict]) -> Path:
+    """``skipped.csv``: index, timestamp (µs, as recorded in the trajectory), file, reason, message."""
+    path = Path(path)
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(("index", "timestamp_us", "path", "reason", "message"))
+        for s in skipped:
+            w.writerow((s["index"], s.get("timestamp_us", ""), s["path"], s["reason"], s["message"]))
+    return path
+
+
 def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float = 1.0, show_progress=True,
-                 plot=True, title=None, motion_prior=True) -> RunResult:
+                 plot=True, title=None, motion_prior=True, on_error: str = "skip") -> RunResult:
     """Run ``model`` (path or `RadarOdometer`) over the recording ``seq_dir``; write outputs.
 
     ``motion_prior`` (True, False or a `MotionPriorConfig`) is passed to the `RadarOdometer`
-    built from a path; an odometer given as ``model`` keeps its own setting.
+    built from a path; an odometer given as ``model`` keeps its own setting. ``on_error``:
+    ``"skip"`` (default) or ``"stop"`` for a sweep that cannot be used (module docstring).
+
+    Raises `OutputError` when ``out_dir`` cannot be a folder, `RunAborted` (``on_error="stop"``,
+    after writing the outputs so far), and the typed errors of `read_sequence` / `RadarOdometer`.
     """
     import time
 
     from .formats import read_sequence
-    from .metrics import covariance_jitter
-    from .trajectory import write_kitti, write_tum
 
+    if on_error not in ON_ERROR:
+        raise ConfigError(f"on_error must be one of {ON_ERROR}, got {on_error!r}")
+    out_dir = prepare_output_dir(out_dir)
     seq = read_sequence(seq_dir)
     odo = model if isinstance(model, RadarOdometer) else RadarOdometer(
         model, threads=threads, max_gap_s=max_gap_s, motion_prior=motion_prior)
     odo.reset()
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     estimates: list[Estimate] = []
     prev_ts: list[int] = []
+    skipped: list[dict] = []
     last_ts = None
+    name_offset_us = 0  # first-azimuth time − file-name time of the last sweep read
     t0 = time.perf_counter()
-    for frame in progress(seq, total=len(seq), desc=f"odometry {Path(seq_dir).name}", unit="sweep",
-                          disable=not show_progress):
-        est = odo.step(frame.scan)
+
+    def finish(complete: bool) -> RunResult:
+        wall = time.perf_counter() - t0
+        return _write_outputs(odo, seq, seq_dir, out_dir, estimates, prev_ts, skipped, wall, plot, title,
+                              complete)
+
+    for i in progress(range(len(seq)), total=len(seq), desc=f"odometry {Path(seq_dir).name}", unit="sweep",
+                      disable=not show_progress):
+        path, name_us = seq.paths[i], int(seq.timestamps_us[i])
+        problem = None
+        try:
+            scan = seq.scan(i)
+        except ScanFormatError as exc:
+            problem = ("unreadable", exc)
+        if problem is None:
+            try:
+                est = odo.step(scan)
+            except StreamError as exc:
+                off_s = abs(scan.timestamp_us - name_us) * 1e-6
+                if off_s <= NAME_TIME_TOLERANCE_S:
+                    # the stream itself is broken there (a gap beyond max_gap_s): not one sweep's
+                    # fault, so the run stops, with the outputs so far written
+                    result = finish(complete=False)
+                    raise RunAborted(
+                        f"{exc} [stopped at sweep {i} of {len(seq)}; the outputs for the "
+                        f"{len(result.timestamps_us)} sweeps before it are in {out_dir}]", result, exc) from None
+                problem = ("bad_timestamp", ScanFormatError(
+                    f"{path}: first azimuth time {scan.timestamp_us} µs is {off_s:.3g} s from the file name's "
+                    f"time ({exc}); the sweep's header is corrupt"))
+            else:
+                name_offset_us = scan.timestamp_us - name_us
+        if problem is not None:
+            reason, exc = problem
+            if on_error == "stop":
+                result = finish(complete=False)
+                raise RunAborted(
+                    f"{exc} [stopped at sweep {i} of {len(seq)} (on_error='stop'); the outputs for the "
+                    f"{len(result.timestamps_us)} sweeps before it are in {out_dir}]", result, exc) from None
+            ts = name_us + name_offset_us
+            entry = {"index": i, "path": str(path), "reason": reason, "message": str(exc), "timestamp_us": ts}
+            try:
+                est = odo.skip(ts, reason, source=str(path))
+            except StreamError as stream_exc:  # not even its file name's time fits: leave it out
+                entry["message"] += f" (left out of the trajectory: {stream_exc})"
+                entry["timestamp_us"] = ""
+                skipped.append(entry)
+                continue
+            skipped.append(entry)
         if est is not None:
             estimates.append(est)
             prev_ts.append(last_ts)
-        last_ts = frame.scan.timestamp_us
-    wall = time.perf_counter() - t0
+        last_ts = odo._stamps[-1] if odo._stamps else None
+    return finish(complete=True)
+
+
+def _write_outputs(odo, seq, seq_dir, out_dir, estimates, prev_ts, skipped, wall, plot, title,
+                   complete: bool) -> RunResult:
+    from .metrics import covariance_jitter
+    from .trajectory import write_kitti, write_tum
+
     traj = odo.trajectory
     result = RunResult(traj.poses, traj.timestamps_us, estimates, None,
-                       seconds_per_step=wall / max(len(traj), 1))
+                       seconds_per_step=wall / max(len(traj), 1), skipped=list(skipped))
     result.files["tum"] = write_tum(out_dir / "trajectory.tum", traj.timestamps_us, traj.poses)
     result.files["kitti"] = write_kitti(out_dir / "trajectory.kitti", traj.poses)
     result.files["estimates"] = write_estimates_csv(out_dir / "estimates.csv", estimates, prev_ts)
+    if skipped:
+        result.files["skipped"] = write_skipped_csv(out_dir / "skipped.csv", skipped)
     gt = seq.gt_absolute()
-    if gt is not None and len(gt) == len(traj):
+    n = len(traj)
+    if gt is not None and complete and n == len(seq) and len(gt) == n:
         result.gt_poses = gt
         p = odo.info.profile
         result.metrics, result.step_errors = evaluate(
-            gt, traj.poses, estimates, covariance_jitter(p.resolution_m, p.rotation_step_rad))
+            gt, traj.poses, estimates, covariance_jitter(p.resolution_m, p.rotation_step_rad),
+            gt_relative=seq.gt_relative)
+    if gt is not None and n == len(seq) and len(gt) == n:
+        # one ground-truth pose per estimated pose, stamped like the estimate so that evo pairs
+        # them by time (TUM) or by line (KITTI); unknown past the first pair without ground truth
+        known = np.all(np.isfinite(gt.reshape(n, -1)), axis=1)
+        upto = n if known.all() else int(np.argmin(known))
+        result.files["gt_tum"] = write_tum(out_dir / "ground_truth.tum", traj.timestamps_us[:upto], gt[:upto])
+        if known.all():
+            result.files["gt_kitti"] = write_kitti(out_dir / "ground_truth.kitti", gt)
     if plot:
         result.files["plot"] = plot_trajectory(
             out_dir / "trajectory.png", traj.poses, result.gt_poses, traj.timestamps_us,

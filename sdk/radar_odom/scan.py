@@ -15,6 +15,20 @@ from .errors import ScanFormatError
 
 OXFORD_RANGE_RESOLUTION_M = 0.0432
 OXFORD_ENCODER_SIZE = 5600
+_INT64_LIMIT = float(2**63)
+
+
+def _finite_float(value, name: str, where: str) -> float:
+    """``float(value)`` if it is a finite real number, else `ScanFormatError` naming ``name``."""
+    if isinstance(value, (bool, np.bool_)):
+        raise ScanFormatError(f"{where}{name} must be a number, got {value!r}")
+    try:
+        out = float(value)
+    except (TypeError, ValueError, OverflowError):
+        raise ScanFormatError(f"{where}{name} must be a number, got {value!r}") from None
+    if not np.isfinite(out):
+        raise ScanFormatError(f"{where}{name} must be finite, got {out!r}")
+    return out
 
 
 @dataclass(frozen=True)
@@ -85,28 +99,47 @@ class RadarScan:
         """Build and validate a sweep from arrays (e.g. a live driver).
 
         ``power`` may be uint8 (0..255, scaled by 1/255) or float in [0, 1]. Raises
-        `ScanFormatError` on mismatched lengths, NaN/inf, non-increasing azimuths or
-        timestamps, values outside [0, 1], or when every row is invalid. Invalid rows are
-        zeroed and listed in ``invalid_rows``.
+        `ScanFormatError` on mismatched lengths, non-numeric arrays, NaN/inf, non-increasing
+        azimuths or timestamps, values outside [0, 1], timestamps beyond int64 µs, a range
+        resolution that is not a finite number > 0 (or an offset that is not finite), encoder
+        counts outside uint16, or when every row is invalid. Nothing is coerced silently:
+        float timestamps are rounded to integer µs, nothing else changes value. Invalid rows
+        are zeroed and listed in ``invalid_rows``.
         """
         where = f"{source}: "
-        power = np.asarray(power)
+        try:
+            power = np.asarray(power)
+            ts = np.asarray(timestamps_us)
+            az = np.asarray(azimuths_rad)
+        except (ValueError, TypeError) as exc:  # ragged nested lists and the like
+            raise ScanFormatError(f"{where}arrays cannot be read as numeric arrays ({exc})") from None
         if power.ndim != 2 or power.shape[0] < 2 or power.shape[1] < 2:
             raise ScanFormatError(f"{where}power must be a 2-D array [azimuths, bins], got shape {power.shape}")
         a = power.shape[0]
-        ts = np.asarray(timestamps_us)
-        az = np.asarray(azimuths_rad)
         for name, arr in (("timestamps_us", ts), ("azimuths_rad", az)):
             if arr.shape != (a,):
                 raise ScanFormatError(
                     f"{where}{name} has shape {arr.shape} but power has {a} azimuth rows; "
                     "give one value per azimuth"
                 )
+            if arr.dtype.kind not in "iuf":
+                raise ScanFormatError(f"{where}{name} must be integer or float numbers, got dtype {arr.dtype}")
+        res = _finite_float(range_resolution_m, "range_resolution_m", where)
+        if res <= 0:
+            raise ScanFormatError(
+                f"{where}range_resolution_m must be > 0 metres per bin, got {res!r}"
+            )
+        offset = _finite_float(range_offset_m, "range_offset_m", where)
         if valid is None:
             valid = np.ones(a, dtype=bool)
-        valid = np.asarray(valid)
+        try:
+            valid = np.asarray(valid)
+        except (ValueError, TypeError) as exc:
+            raise ScanFormatError(f"{where}valid cannot be read as an array ({exc})") from None
         if valid.shape != (a,):
             raise ScanFormatError(f"{where}valid has shape {valid.shape}, expected ({a},)")
+        if valid.dtype.kind not in "biuf" or (valid.dtype.kind == "f" and not np.all(np.isfinite(valid))):
+            raise ScanFormatError(f"{where}valid must be booleans (or 0/1 numbers), got dtype {valid.dtype}")
         valid = valid.astype(bool)
         if power.dtype == np.uint8:
             power = power.astype(np.float32) / np.float32(255.0)
@@ -122,10 +155,18 @@ class RadarScan:
                 raise ScanFormatError(
                     f"{where}power must lie in [0, 1] (got [{lo:.3g}, {hi:.3g}]); divide 8-bit data by 255"
                 )
-        if not np.issubdtype(ts.dtype, np.integer):
+        if ts.dtype.kind == "f":
             if not np.all(np.isfinite(ts)):
                 raise ScanFormatError(f"{where}timestamps_us holds NaN/inf")
             ts = np.round(ts)
+            # float64 cannot hold 2**63 - 1; anything at or beyond ±2**63 would wrap in int64
+            if np.any(np.abs(ts) >= _INT64_LIMIT):
+                raise ScanFormatError(
+                    f"{where}timestamps_us holds {float(np.max(np.abs(ts))):.3g}, beyond the int64 range "
+                    "of UNIX microseconds; give integer µs (a UNIX time now is about 1.7e15 µs)"
+                )
+        elif ts.dtype.kind == "u" and ts.size and int(ts.max()) > np.iinfo(np.int64).max:
+            raise ScanFormatError(f"{where}timestamps_us holds {int(ts.max())}, beyond the int64 range")
         ts = ts.astype(np.int64)
         if not np.all(np.isfinite(az)):
             raise ScanFormatError(f"{where}azimuths_rad holds NaN/inf")
@@ -146,15 +187,29 @@ class RadarScan:
         invalid = np.flatnonzero(~valid)
         if invalid.size:
             power[invalid] = 0.0
-        enc = None if encoder_counts is None else np.asarray(encoder_counts).astype(np.uint16)
+        enc = None
+        if encoder_counts is not None:
+            try:
+                enc = np.asarray(encoder_counts)
+            except (ValueError, TypeError) as exc:
+                raise ScanFormatError(f"{where}encoder_counts cannot be read as an array ({exc})") from None
+            if enc.shape != (a,) or enc.dtype.kind not in "iu":
+                raise ScanFormatError(
+                    f"{where}encoder_counts must be {a} integers (one per azimuth), got shape {enc.shape} "
+                    f"dtype {enc.dtype}"
+                )
+            if enc.size and (int(enc.min()) < 0 or int(enc.max()) > 65535):
+                raise ScanFormatError(f"{where}encoder_counts must lie in 0..65535 (uint16), got "
+                                      f"[{int(enc.min())}, {int(enc.max())}]")
+            enc = enc.astype(np.uint16)
         return cls(
             timestamps_us=ts,
             azimuths_rad=az,
             valid=valid,
             power=power,
-            range_resolution_m=float(range_resolution_m),
-            range_offset_m=float(range_offset_m),
+            range_resolution_m=res,
+            range_offset_m=offset,
             encoder_counts=enc,
-            source=source,
+            source=str(source),
             invalid_rows=tuple(int(i) for i in invalid),
         )

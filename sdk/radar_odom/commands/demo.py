@@ -20,7 +20,14 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from ..demo import run_demo
+    from ..errors import OutputError
+    from ..run import prepare_output_dir
 
-    run_demo(frames=args.frames, model=args.model, seed=args.seed, scenario=args.scenario,
-             out_dir=args.output, threads=args.threads, echo=print)
+    out = prepare_output_dir(args.output)  # OutputError (one line) when -o names a file
+    try:
+        run_demo(frames=args.frames, model=args.model, seed=args.seed, scenario=args.scenario,
+                 out_dir=out, threads=args.threads, echo=print)
+    except OSError as exc:  # a disk full, a folder made read-only meanwhile, ...
+        where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
+        raise OutputError(f"{where}{exc.strerror or exc}") from None
     return 0

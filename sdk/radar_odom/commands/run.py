@@ -2,12 +2,21 @@
 from __future__ import annotations
 
 HELP = "odometry over a recording (Oxford layout, Boreas, MulRan); writes trajectories, estimates and a plot"
+EXIT_OK, EXIT_ERROR, EXIT_SKIPPED = 0, 1, 3
+EPILOG = (
+    "exit status: 0 every sweep was used; 3 the run finished but some sweeps were skipped "
+    "(--on-error skip; listed on stderr and in skipped.csv); 1 an error stopped the run "
+    "(one line on stderr)."
+)
 
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "run", help=HELP,
-        description=HELP + ". Prints the KITTI odometry metric when the recording has ground truth."
+        description=HELP + ". Prints the KITTI odometry metric when the recording has ground truth, "
+                           "and then also writes it as ground_truth.tum / ground_truth.kitti beside the "
+                           "estimate (for evo_ape / evo_rpe).",
+        epilog=EPILOG,
     )
     p.add_argument("sequence", help="recording folder (e.g. SEQ with SEQ/radar/*.png)")
     p.add_argument("-m", "--model", default=None,
@@ -17,6 +26,10 @@ def register(subparsers) -> None:
     p.add_argument("--threads", type=int, default=None, help="onnxruntime threads (default: physical cores)")
     p.add_argument("--max-gap-s", type=float, default=1.0,
                    help="largest time (s) between consecutive sweeps before the run stops with an error (default: 1.0)")
+    p.add_argument("--on-error", choices=("skip", "stop"), default="skip",
+                   help="a sweep that cannot be read (corrupt file, garbage timestamps): 'skip' reports it, "
+                        "bridges the trajectory across it (flagged degenerate) and exits with status 3; "
+                        "'stop' writes the outputs so far and exits with status 1 (default: skip)")
     p.add_argument("--no-plot", action="store_true", help="do not draw trajectory.png (no matplotlib needed)")
     p.add_argument("--no-motion-prior", action="store_true",
                    help="report the raw matches: no fusion with the constant-velocity motion prior "
@@ -25,15 +38,30 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
+    import sys
+    import warnings
     from pathlib import Path
 
+    from ..errors import GroundTruthWarning, OutputError, RadarOdomError
     from ..pretrained import default_model_name, resolve_model
     from ..run import format_metrics, run_sequence
 
     model = resolve_model(args.model or default_model_name())
     out = Path(args.output) if args.output else Path(f"run-{Path(args.sequence).resolve().name}")
-    result = run_sequence(args.sequence, model, out, threads=args.threads, max_gap_s=args.max_gap_s,
-                          plot=not args.no_plot, motion_prior=not args.no_motion_prior)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", GroundTruthWarning)
+        try:
+            result = run_sequence(args.sequence, model, out, threads=args.threads, max_gap_s=args.max_gap_s,
+                                  plot=not args.no_plot, motion_prior=not args.no_motion_prior,
+                                  on_error=args.on_error)
+        except RadarOdomError:
+            _print_warnings(caught, sys.stderr)
+            raise
+        except OSError as exc:  # a disk full, a folder made read-only during the run, ...
+            _print_warnings(caught, sys.stderr)
+            where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
+            raise OutputError(f"{where}{exc.strerror or exc}") from None
+    _print_warnings(caught, sys.stderr)
     gated = sum(e.gated for e in result.estimates)
     dominated = sum(e.prior_dominated for e in result.estimates)
     prior = "motion prior off" if args.no_motion_prior else f"{gated} gated, {dominated} prior-dominated"
@@ -43,4 +71,15 @@ def run(args) -> int:
     print(text if text else "no ground truth in this recording: no metrics")
     for kind, path in result.files.items():
         print(f"{kind}: {path}")
-    return 0
+    for s in result.skipped:
+        print(f"radar-odom run: skipped sweep {s['index']} ({s['reason']}): {s['message']}", file=sys.stderr)
+    if result.skipped:
+        print(f"radar-odom run: {len(result.skipped)} of {len(result.timestamps_us)} sweeps skipped "
+              f"(bridged, flagged degenerate); exit status {EXIT_SKIPPED}", file=sys.stderr)
+        return EXIT_SKIPPED
+    return EXIT_OK
+
+
+def _print_warnings(caught, stream) -> None:
+    for w in caught:
+        print(f"radar-odom run: warning: {w.message}", file=stream)

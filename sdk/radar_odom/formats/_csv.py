@@ -1,6 +1,7 @@
 """Reading pose CSVs whose first column is a timestamp, with `SequenceError` on bad files."""
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -11,9 +12,12 @@ from ..errors import SequenceError
 def _stamp(text: str) -> int:
     """An integer timestamp (µs or ns) as written; a decimal one is taken as seconds → µs."""
     text = text.strip()
-    if text.lstrip("-").isdigit():
+    if text.lstrip("-").isascii() and text.lstrip("-").isdigit():
         return int(text)  # parsed as int: ns stamps (~1.7e18) would lose digits in a float
-    return int(round(float(text) * 1e6))
+    us = float(text) * 1e6
+    if not math.isfinite(us):
+        raise ValueError(f"timestamp {text[:30]!r} is not a finite number")
+    return int(round(us))
 
 
 def read_numeric_csv(path, *, required=(), num_columns=None):
@@ -61,6 +65,46 @@ def read_numeric_csv(path, *, required=(), num_columns=None):
         try:
             stamps[i] = _stamp(parts[0])
             values.append([float(p) for p in parts[1:]])
-        except ValueError as exc:
+        except (ValueError, OverflowError) as exc:
             raise SequenceError(f"{path}, line {i + start}: not a number ({exc})") from None
-    return names, stamps, np.asarray(values, dtype=np.float64).reshape(len(lines), -1)
+    values = np.asarray(values, dtype=np.float64).reshape(len(lines), -1)
+    return names, *_drop_bad_rows(path, stamps, values, start)
+
+
+def _drop_bad_rows(path, stamps, values, start):
+    """Rows with a NaN/inf value, and rows repeating a stamp with other values, are dropped
+    (identical repeats are kept once), with one `GroundTruthWarning` naming their lines."""
+    finite = np.all(np.isfinite(values), axis=1)
+    keep = finite.copy()
+    seen: dict[int, int] = {}
+    conflicts = []
+    for i in np.flatnonzero(finite).tolist():
+        t = int(stamps[i])
+        j = seen.get(t)
+        if j is None:
+            seen[t] = i
+        elif np.array_equal(values[i], values[j]):
+            keep[i] = False
+        else:
+            conflicts.append((j, i))
+            keep[i] = keep[j] = False
+    if keep.all():
+        return stamps, values
+    import warnings
+
+    from ..errors import GroundTruthWarning
+
+    parts = []
+    bad = (np.flatnonzero(~finite) + start).tolist()
+    if bad:
+        more = f" and {len(bad) - 5} more" if len(bad) > 5 else ""
+        parts.append(f"NaN/inf values on line{'s' if len(bad) > 1 else ''} {', '.join(map(str, bad[:5]))}{more}")
+    if conflicts:
+        more = f" and {len(conflicts) - 5} more" if len(conflicts) > 5 else ""
+        parts.append("different poses for the same time on lines "
+                     + ", ".join(f"{a + start} and {b + start}" for a, b in conflicts[:5]) + more)
+    if parts:
+        warnings.warn(f"{path}: {'; '.join(parts)}; those rows are left out", GroundTruthWarning, stacklevel=3)
+    if not keep.any():
+        raise SequenceError(f"{path}: no usable pose row (every row is non-finite or conflicting)")
+    return stamps[keep], values[keep]

@@ -40,24 +40,93 @@ class HeaderRows(NamedTuple):
     power_u8: np.ndarray  # uint8[A, B]
 
 
+# Decompression bombs: a PNG of a few kB may declare billions of pixels. Its size is read from the
+# IHDR chunk (the first 33 bytes) and refused before anything is decoded. The largest real sweep
+# PNGs are a few million pixels (Oxford 400 × 3779, MulRan 3360 × 400); 2**25 pixels is a
+# 5600-azimuth sweep of 5600 bins, and at most 64 MiB decoded.
+MAX_PNG_PIXELS = 2**25
+MAX_PNG_DECODED_BYTES = 2**26
+IHDR_BYTES = 33  # signature (8) + length (4) + "IHDR" (4) + 13 data bytes + CRC (4)
+# bytes per pixel OpenCV decodes each PNG colour type to (IMREAD_UNCHANGED; palette → BGR(A))
+_DECODED_CHANNELS = {0: 1, 2: 3, 3: 4, 4: 4, 6: 4}
+
+
+class PngHeader(NamedTuple):
+    width: int
+    height: int
+    bit_depth: int
+    colour_type: int
+
+
+def read_png_header(path: Path, head: bytes) -> PngHeader:
+    """Width, height, bit depth and colour type from a PNG's first 33 bytes, or `ScanFormatError`.
+
+    Refuses (before any decoding) an image larger than `MAX_PNG_PIXELS` or one that would decode
+    to more than `MAX_PNG_DECODED_BYTES`.
+    """
+    if len(head) < IHDR_BYTES:
+        raise ScanFormatError(
+            f"{path}: PNG is truncated ({len(head)} bytes, shorter than its header); re-copy it"
+        )
+    length = int.from_bytes(head[8:12], "big")
+    if head[12:16] != b"IHDR" or length != 13:
+        raise ScanFormatError(
+            f"{path}: PNG is corrupt (its first chunk is not a 13-byte IHDR header); re-copy it"
+        )
+    width, height = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+    depth, colour = head[24], head[25]
+    if width == 0 or height == 0 or colour not in _DECODED_CHANNELS or depth not in (1, 2, 4, 8, 16):
+        raise ScanFormatError(
+            f"{path}: PNG header is corrupt ({width} × {height} pixels, bit depth {depth}, colour type "
+            f"{colour}); re-copy it"
+        )
+    pixels = width * height
+    decoded = pixels * _DECODED_CHANNELS[colour] * (2 if depth == 16 else 1)
+    if pixels > MAX_PNG_PIXELS or decoded > MAX_PNG_DECODED_BYTES:
+        raise ScanFormatError(
+            f"{path}: PNG declares {width} × {height} pixels ({decoded / 2**20:.0f} MiB decoded), more "
+            f"than any radar sweep (at most {MAX_PNG_PIXELS} pixels, {MAX_PNG_DECODED_BYTES // 2**20} MiB); "
+            "refused without decoding — the file is corrupt or not a radar sweep"
+        )
+    return PngHeader(width, height, depth, colour)
+
+
 def read_png_u8(path: Path) -> np.ndarray:
-    """Decode an 8-bit single-channel PNG to uint8[H, W], or raise `ScanFormatError`."""
+    """Decode an 8-bit single-channel PNG to uint8[H, W], or raise `ScanFormatError`.
+
+    The size in the PNG header is checked first (`read_png_header`): a decompression bomb is
+    refused after reading 33 bytes.
+    """
     path = Path(path)
     if not path.is_file():
         raise ScanFormatError(f"{path}: no such file")
-    with open(path, "rb") as f:
-        head = f.read(len(PNG_SIGNATURE))
+    try:
+        with open(path, "rb") as f:
+            head = f.read(IHDR_BYTES)
+    except OSError as exc:
+        raise ScanFormatError(f"{path}: cannot read the file ({exc.strerror or exc})") from None
     if len(head) == 0:
         raise ScanFormatError(f"{path}: file is empty; re-copy the sweep")
-    if head != PNG_SIGNATURE:
+    if head[: len(PNG_SIGNATURE)] != PNG_SIGNATURE:
         raise ScanFormatError(
-            f"{path}: not a PNG file (starts with {head!r}); radar sweeps are 8-bit greyscale PNGs"
+            f"{path}: not a PNG file (starts with {head[:8]!r}); radar sweeps are 8-bit greyscale PNGs"
         )
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    header = read_png_header(path, head)
+    try:
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    except (cv2.error, MemoryError) as exc:
+        raise ScanFormatError(
+            f"{path}: PNG could not be decoded ({type(exc).__name__}); the file is corrupt; re-copy it"
+        ) from None
     if img is None:
         raise ScanFormatError(
             f"{path}: PNG could not be decoded ({path.stat().st_size} bytes): the file is "
             "truncated or corrupt; re-copy it"
+        )
+    if img.shape[:2] != (header.height, header.width):  # changed under us, or a decoder surprise
+        raise ScanFormatError(
+            f"{path}: decoded {img.shape[1]} × {img.shape[0]} pixels but the header says "
+            f"{header.width} × {header.height}; the file is corrupt"
         )
     if img.ndim != 2:
         raise ScanFormatError(
@@ -151,7 +220,7 @@ def to_microseconds(values: np.ndarray, reference: np.ndarray | None = None) -> 
 def name_timestamp(path: Path) -> int | None:
     """The integer a sweep's file name holds (µs or ns), or None if the stem is not an integer."""
     stem = Path(path).stem
-    return int(stem) if stem.isdigit() else None
+    return int(stem) if stem.isascii() and stem.isdigit() else None
 
 
 def check_counts_increasing(counts: np.ndarray, valid: np.ndarray, source: str) -> None:

@@ -150,9 +150,14 @@ def read_oxford_ground_truth(path) -> dict[tuple[int, int], np.ndarray]:
     """``{(destination_radar_ts, source_radar_ts): float64[3] (x, y, yaw)}`` from an Oxford gt CSV.
 
     Keyed earlier-then-later so a consecutive pair ``(ts[k], ts[k+1])`` looks its pose up
-    directly. Raises `SequenceError` on a missing column or a malformed row.
+    directly. Raises `SequenceError` on a missing column or a malformed row. A row holding a
+    NaN/inf pose, or two rows for the same pair that disagree, leave that pair without ground
+    truth (NaN) and issue one `GroundTruthWarning` naming the file and line numbers; rows
+    repeated identically are kept once.
     """
     path = Path(path)
+    nonfinite: list[int] = []
+    conflicts: list[tuple[int, int]] = []
     with open(path, newline="") as f:
         header = f.readline().strip().split(",")
         missing = [c for c in GT_REQUIRED if c not in header]
@@ -162,7 +167,8 @@ def read_oxford_ground_truth(path) -> dict[tuple[int, int], np.ndarray]:
                 f"columns {','.join(GT_COLUMNS)}"
             )
         col = {name: header.index(name) for name in GT_REQUIRED}
-        out = {}
+        out: dict[tuple[int, int], np.ndarray] = {}
+        first_line: dict[tuple[int, int], int] = {}
         for lineno, line in enumerate(f, start=2):
             if not line.strip():
                 continue
@@ -176,5 +182,34 @@ def read_oxford_ground_truth(path) -> dict[tuple[int, int], np.ndarray]:
                     f"{path}, line {lineno}: cannot read a ground-truth row ({exc}); expected "
                     f"{len(header)} comma-separated numbers"
                 ) from None
-            out[(earlier, later)] = pose
+            key = (earlier, later)
+            if not np.all(np.isfinite(pose)):
+                nonfinite.append(lineno)
+                pose = np.full(3, np.nan)
+            if key in out:
+                same = np.array_equal(out[key], pose, equal_nan=True)
+                if not same:
+                    conflicts.append((first_line[key], lineno))
+                    pose = np.full(3, np.nan)
+            else:
+                first_line[key] = lineno
+            out[key] = pose
+    if nonfinite or conflicts:
+        import warnings
+
+        from ..errors import GroundTruthWarning
+
+        parts = []
+        if nonfinite:
+            more = f" and {len(nonfinite) - 5} more" if len(nonfinite) > 5 else ""
+            parts.append(f"NaN/inf pose on line{'s' if len(nonfinite) > 1 else ''} "
+                         f"{', '.join(map(str, nonfinite[:5]))}{more}")
+        if conflicts:
+            more = f" and {len(conflicts) - 5} more" if len(conflicts) > 5 else ""
+            parts.append("rows for the same pair that disagree on lines "
+                         + ", ".join(f"{a} and {b}" for a, b in conflicts[:5]) + more)
+        warnings.warn(
+            f"{path}: {'; '.join(parts)}; those pairs have no ground truth (the rest is used as it is)",
+            GroundTruthWarning, stacklevel=2,
+        )
     return out

@@ -67,7 +67,7 @@ def times_path(sweep_path) -> Path:
 def frame_number(path) -> int | None:
     """The frame number a sweep's file name holds (``000017.png`` → 17), or None."""
     stem = Path(path).stem
-    return int(stem) if stem.isdigit() else None
+    return int(stem) if stem.isascii() and stem.isdigit() else None
 
 
 def _seconds_to_us(whole: str, frac: str | None) -> int:
