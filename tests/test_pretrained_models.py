@@ -39,6 +39,35 @@ def test_shipped_model_is_a_calibrated_learned_stream_model_of_its_profile(name)
     assert info.profile.beta_cov == pytest.approx(calibration["beta_cov"])
     assert 2.7 <= calibration["mean_d2"] <= 3.3
     assert info.search is not None  # the shipped models use the fast yaw search
+    # trained for real radars: gain/offset-free input, sub-cell peak read-out
+    assert info.profile.input_norm == "floor-scale"
+    assert info.profile.pose_estimator == "parabolic"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["cart-0.8"])
+def test_export_by_name_rebuilds_the_shipped_graph(name, tmp_path):
+    """`radar-odom export NAME` works from a fresh checkout: the shipped checkpoint is the
+    shipped model's source (same profile, same poses)."""
+    pytest.importorskip("torch")
+    pytest.importorskip("onnx")
+    import subprocess
+    import sys
+
+    out = tmp_path / f"{name}.onnx"
+    r = subprocess.run([sys.executable, "-m", "radar_odom", "export", name, "-o", str(out), "--search", "fast"],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    shipped = OnnxModel(radar_odom.pretrained(name), threads=1)
+    rebuilt = OnnxModel(out, threads=1)
+    assert rebuilt.info.profile == shipped.info.profile
+    rng = np.random.default_rng(0)
+    w = shipped.info.profile.width_px
+    cart = (rng.random((1, w, w)) ** 8).astype(np.float32)
+    state = np.zeros(shipped.info.state_shape, np.float32)
+    a = shipped.run({"cart": cart, "prev_state": state})
+    b = rebuilt.run({"cart": cart, "prev_state": state})
+    np.testing.assert_allclose(a["state"], b["state"], rtol=1e-4, atol=1e-4 * float(np.abs(a["state"]).max()))
 
 
 @pytest.mark.slow

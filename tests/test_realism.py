@@ -56,3 +56,34 @@ def test_oxford_preset_within_30_percent_of_real_oxford_on_every_statistic(real_
     assert len(rows) == 14
     bad = [f"{k}: real {a:.4g} sim {b:.4g} (×{r:.2f})" for k, a, b, r, ok in rows if not ok]
     assert not bad, "outside ±30 %: " + "; ".join(bad)
+
+
+# ------------------------------------------------------------------ presets and randomisation
+def test_randomised_sensors_are_deterministic_and_cover_both_installations():
+    from radar_odom.sim import SENSOR_PRESETS, randomised_config
+
+    draws = [randomised_config(s) for s in range(40)]
+    assert randomised_config(7) == draws[7]
+    bins = {d.sensor.num_bins for d in draws}
+    assert bins == {SENSOR_PRESETS["oxford"].sensor.num_bins, SENSOR_PRESETS["radiate"].sensor.num_bins}
+    floors = [d.sensor.floor_db for d in draws]
+    assert max(floors) - min(floors) > 6.0  # count offsets well beyond the two real radars' gap
+    assert {d.sensor.integer_power for d in draws} == {True, False}
+
+
+def test_a_randomised_drive_simulates_valid_sweeps():
+    from radar_odom.sim import randomised_config, simulate_drive
+
+    for seed in (3, 4):
+        scan = list(simulate_drive(seed, 2, "urban", randomised_config(seed)))[-1].scan
+        assert 0.0 <= float(scan.power.min()) and float(scan.power.max()) <= 1.0
+        assert 0.001 < float(np.median(scan.power)) < 0.5
+
+
+def test_sensor_specs_give_each_training_drive_its_own_radar():
+    pytest.importorskip("torch")
+    from radar_odom_export.data import sensor_specs
+
+    specs = sensor_specs([1000, 1001], ["urban", "open"], 10, "randomised")
+    assert len(specs) == 4 and len({repr(s.config) for s in specs}) == 4
+    assert all(s.config is None for s in sensor_specs([1000], ["urban"], 10, "oxford"))
