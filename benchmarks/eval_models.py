@@ -45,6 +45,8 @@ def main(argv=None) -> int:
     ap.add_argument("--pooling", choices=("segments", "sequences"), default="segments")
     ap.add_argument("--threads", type=int, default=None, help="torch threads (default: all cores)")
     ap.add_argument("--workers", type=int, default=2, help="processes simulating drives")
+    ap.add_argument("--motion-prior", action="store_true",
+                    help="also score each model's measurements fused by the runtime's motion prior (extra rows)")
     ap.add_argument("-o", "--output", default=None, help="write the full results as JSON here")
     ap.add_argument("--markdown", default=None, help="also write the tables to this markdown file")
     args = ap.parse_args(argv)
@@ -53,7 +55,7 @@ def main(argv=None) -> int:
 
     from radar_odom_export.checkpoint import load_checkpoint
     from radar_odom_export.data import build_drives, check_seed_policy, parse_seeds, sim_specs
-    from radar_odom_export.evaluate import evaluate_model, markdown_table, scenario_table
+    from radar_odom_export.evaluate import evaluate_model, markdown_table, scenario_d2_table, scenario_table
 
     torch.set_num_threads(args.threads or os.cpu_count() or 1)
     seeds = parse_seeds(args.seeds)
@@ -71,7 +73,16 @@ def main(argv=None) -> int:
                              progress_desc=f"{Path(path).name}")
         res.update(label=label_of(meta), checkpoint=str(path), calibrated="calibration" in meta,
                    path_m=[d["path_m"] for d in res["per_drive"]])
+        estimates = res.pop("estimates")
         rows.append(res)
+        if args.motion_prior:  # the same measurements through the runtime's motion prior
+            fused = evaluate_model(model, drives, step=args.step, lengths=lengths, pooling=args.pooling,
+                                   timing_repeats=0, motion_prior=True, estimates=estimates)
+            fused.pop("estimates")
+            fused.update(label=label_of(meta) + " + motion prior", checkpoint=str(path),
+                         calibrated="calibration" in meta, path_m=res["path_m"])
+            fused["runtime_ms_per_pair"] = res["runtime_ms_per_pair"]
+            rows.append(fused)
         print(f"{Path(path).name}: {res['translation_percent']:.3f} %  {res['rotation_deg_per_m']:.4f} deg/m  "
               f"d² {res['mean_d2']:.3g}", file=sys.stderr)
 
@@ -81,7 +92,8 @@ def main(argv=None) -> int:
               f"{', '.join(f'{x:g}' for x in lengths)} m, step {args.step}, pooling {args.pooling}. "
               f"Runtime: torch {torch.__version__} CPU, {torch.get_num_threads()} threads, one streaming "
               f"step (batch 1) on {platform.processor() or platform.machine()}.")
-    text = "\n\n".join([header, markdown_table(rows), "Translational error % per scenario:", scenario_table(rows)])
+    text = "\n\n".join([header, markdown_table(rows), "Translational error % per scenario:", scenario_table(rows),
+                         "Mean d² per scenario:", scenario_d2_table(rows)])
     print(text)
     print(f"\n({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
     if args.output:

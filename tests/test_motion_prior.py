@@ -458,3 +458,17 @@ def test_run_command_switches_the_prior_off(cart08, tmp_path, capsys):
         assert [off[k] for k in keys] == [off[k] for k in meas]
         np.testing.assert_allclose([float(on[k]) for k in meas], [float(off[k]) for k in keys], atol=1e-6)
     assert any(abs(float(on["x_m"]) - float(on["meas_x_m"])) > 1e-6 for on in rows["on"][1:])
+
+
+def test_evaluation_applies_the_runtime_prior_to_a_drive():
+    pytest.importorskip("torch")
+    from radar_odom_export.evaluate import with_motion_prior
+
+    n = 12
+    poses = np.tile([2.0, 0.0, 0.0], (n, 1))
+    covs = np.tile(np.diag([0.05**2, 0.05**2, np.radians(0.5) ** 2]), (n, 1, 1))
+    poses[8, 2] = np.radians(14.0)  # a confident yaw spike while driving straight
+    fused, fcov = with_motion_prior(poses, covs)
+    assert fused.shape == poses.shape and fcov.shape == covs.shape
+    assert abs(fused[8, 2]) < np.radians(1.0)  # gated: the prediction stands in for it
+    np.testing.assert_allclose(fused[[1, 5, 11], 0], 2.0, atol=0.01)
