@@ -228,7 +228,10 @@ def shipped_meta():
     return dict(OnnxModel(pretrained("cart-0.8"), threads=1).session.get_modelmeta().custom_metadata_map)
 
 
-def edited(meta, **changes):
+def edited(meta, resign: bool = True, **changes):
+    """``meta`` with ``radar_odom.<k>`` replaced (None: removed). A changed profile is re-signed
+    (its digest recomputed, as a careful forger would) unless ``resign=False`` or the digest is
+    among the changes, so the checks behind the digest are the ones exercised."""
     out = dict(meta)
     for k, v in changes.items():
         key = "radar_odom." + k
@@ -236,6 +239,9 @@ def edited(meta, **changes):
             out.pop(key, None)
         else:
             out[key] = v
+    if (resign and "profile" in changes and "profile_sha256" not in changes
+            and "radar_odom.profile_sha256" in out and isinstance(out.get("radar_odom.profile"), str)):
+        out["radar_odom.profile_sha256"] = profile_digest(out["radar_odom.profile"])
     return out
 
 
@@ -276,7 +282,7 @@ def test_a_tampered_grid_is_refused_against_the_input_shape(shipped_meta):
 def test_a_profile_digest_catches_a_scale_change_that_keeps_every_shape(shipped_meta):
     signed = edited(shipped_meta, profile_sha256=profile_digest(shipped_meta["radar_odom.profile"]))
     assert ModelInfo.from_metadata(signed).profile.resolution_m == 0.8
-    scaled = edited(signed, profile=profile_with(shipped_meta, resolution_m=1.0))
+    scaled = edited(signed, resign=False, profile=profile_with(shipped_meta, resolution_m=1.0))
     with pytest.raises(InvalidModelError, match="digest"):
         ModelInfo.from_metadata(scaled)
 
