@@ -56,17 +56,22 @@ def test_peak_window_marks_the_cells_around_the_best_candidate():
     assert float(mask[0, p.num_rotations // 2, c - 2, c]) == 0.0
 
 
-def test_fast_search_window_matches_the_exhaustive_window():
+def full_band_and_exhaustive(yaw_deg: float, **profile_fields):
+    """(model, cur, state, exhaustive step output, full-band fast step output) for a raw model on
+    a blob pair moved by (2.3 m, −1.4 m, yaw_deg)."""
     torch.manual_seed(0)
     p = tiny_profile(width_px=64, max_translation_m=6.0, rotation_range_rad=math.radians(6),
-                     rotation_step_rad=math.radians(1), pose_window_cells=2, beta_pose=0.05)
+                     rotation_step_rad=math.radians(1), **profile_fields)
     model = MaskedCorrelator(p, masking="raw").eval()
-    prev, cur = (torch.from_numpy(a)[None] for a in pair_with_pose((2.3, -1.4, math.radians(2)), 64, 1.0, seed=3))
+    prev, cur = (torch.from_numpy(a)[None] for a in pair_with_pose((2.3, -1.4, math.radians(yaw_deg)), 64, 1.0, seed=3))
     full = FastStreamStep(model, FastSearchSettings(coarse_factor=2, band_half_width=6, rotation="bilinear"))
     with torch.no_grad():
         state = model.initial_state(prev)
-        want = model.stream_step(cur, state)
-        got = full(cur, state)
+        return model, cur, state, model.stream_step(cur, state), full(cur, state)
+
+
+def test_fast_search_window_matches_the_exhaustive_window():
+    _, _, _, want, got = full_band_and_exhaustive(2.0, pose_window_cells=2, beta_pose=0.05)
     torch.testing.assert_close(got[0], want[0], atol=1e-5, rtol=1e-5)
     assert abs(float(want[0][0, 0]) - 2.3) < 0.35 and abs(float(want[0][0, 1]) + 1.4) < 0.35
 
@@ -134,16 +139,7 @@ def test_parabolic_peak_on_the_border_or_without_curvature_stays_on_the_cell():
 def test_parabolic_fast_search_matches_the_exhaustive_step_and_its_onnx_export(tmp_path):
     from radar_odom.onnx_model import OnnxModel
 
-    torch.manual_seed(0)
-    p = tiny_profile(width_px=64, max_translation_m=6.0, rotation_range_rad=math.radians(6),
-                     rotation_step_rad=math.radians(1), pose_estimator="parabolic")
-    model = MaskedCorrelator(p, masking="raw").eval()
-    prev, cur = (torch.from_numpy(a)[None] for a in pair_with_pose((2.3, -1.4, math.radians(2.4)), 64, 1.0, seed=3))
-    full = FastStreamStep(model, FastSearchSettings(coarse_factor=2, band_half_width=6, rotation="bilinear"))
-    with torch.no_grad():
-        state = model.initial_state(prev)
-        want = model.stream_step(cur, state)
-        got = full(cur, state)
+    model, cur, state, want, got = full_band_and_exhaustive(2.4, pose_estimator="parabolic")
     torch.testing.assert_close(got[0], want[0], atol=1e-5, rtol=1e-5)
     assert abs(float(want[0][0, 0]) - 2.3) < 0.2 and abs(float(want[0][0, 1]) + 1.4) < 0.2
     settings = FastSearchSettings(coarse_factor=2, coarse_stride=2, band_half_width=1)

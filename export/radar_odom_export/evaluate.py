@@ -179,22 +179,21 @@ def markdown_table(rows: Sequence[dict]) -> str:
     return "\n".join(lines)
 
 
-def scenario_table(rows: Sequence[dict]) -> str:
-    """Translational error % per scenario (columns) for each model (rows)."""
+def _per_scenario_table(rows: Sequence[dict], key: str, fmt: str) -> str:
+    """One per-scenario metric ``key`` (columns: scenarios) for each model (rows)."""
     scen = sorted({s for r in rows for s in r["per_scenario"]})
     lines = ["| model | " + " | ".join(scen) + " |", "|---|" + "---:|" * len(scen)]
     for r in rows:
-        vals = [r["per_scenario"].get(s, {}).get("translation_percent", math.nan) for s in scen]
-        lines.append(f"| {r['label']} | " + " | ".join(f"{v:.2f}" for v in vals) + " |")
+        vals = [r["per_scenario"].get(s, {}).get(key, math.nan) for s in scen]
+        lines.append(f"| {r['label']} | " + " | ".join(format(v, fmt) for v in vals) + " |")
     return "\n".join(lines)
+
+
+def scenario_table(rows: Sequence[dict]) -> str:
+    """Translational error % per scenario (columns) for each model (rows)."""
+    return _per_scenario_table(rows, "translation_percent", ".2f")
 
 
 def scenario_d2_table(rows: Sequence[dict]) -> str:
     """Mean d² per scenario (columns) for each model (rows): is the covariance honest everywhere?"""
-    scen = sorted({s for r in rows for s in r["per_scenario"]})
-    lines = ["| model | " + " | ".join(scen) + " |", "|---|" + "---:|" * len(scen)]
-    for r in rows:
-        vals = [r["per_scenario"].get(s, {}).get("mean_d2", math.nan) for s in scen]
-        lines.append(f"| {r['label']} | " + " | ".join(f"{v:.3g}" for v in vals) + " |")
-    return "\n".join(lines)
-
+    return _per_scenario_table(rows, "mean_d2", ".3g")
