@@ -28,17 +28,7 @@ from radar_odom import metrics
 from radar_odom.errors import RadarOdomError
 from radar_odom.profiles import GridProfile
 
-from .softargmax import (candidate_weights, parabolic_peak, peak_window, pose_window, weighted_covariance,
-                         weighted_mean, windowed_weights)
-
-
-def _pose_weights(volume: torch.Tensor, beta: float, candidates: torch.Tensor, window) -> torch.Tensor:
-    """float[B, S] pose weights as `MaskedCorrelator.pose_from_volume` uses them."""
-    if window is None:
-        return candidate_weights(volume, beta)
-    c = candidates.to(volume.dtype)
-    mask = peak_window(volume, c[0, :, 0, 0], c[0, 0, :, 1], c[:, 0, 0, 2], *window)
-    return windowed_weights(volume, beta, mask).flatten(1)
+from .softargmax import candidate_weights, read_pose, weighted_covariance
 
 TARGET_D2 = 3.0
 BAND = (2.7, 3.3)
@@ -119,14 +109,8 @@ class D2Curve:
         self.chunk = chunk
         self.jitter = covariance_jitter(profile)
         self.floor = np.diag(profile.covariance_floor)  # as MaskedCorrelator.pose_from_volume adds
-        if profile.pose_estimator == "parabolic":  # the pose the model reports (see softargmax)
-            c = candidates.to(torch.float64)
-            means = [parabolic_peak(v.double(), c[0, :, 0, 0], c[0, 0, :, 1], c[:, 0, 0, 2], profile.rotation_step_rad)
-                     for v in volumes.split(chunk)]
-        else:
-            window = pose_window(profile)
-            means = [weighted_mean(_pose_weights(v.double(), profile.beta_pose, candidates, window), self.flat)
-                     for v in volumes.split(chunk)]
+        # the pose the model reports (`softargmax.read_pose`)
+        means = [read_pose(v.double(), candidates, profile) for v in volumes.split(chunk)]
         self.mean = torch.cat(means).numpy()
         self.err = pose_errors(gt_xyyaw, self.mean)
 

@@ -609,11 +609,12 @@ class FastStreamStep(nn.Module):
     def soft_argmax(self, volume: torch.Tensor, yaws: torch.Tensor):
         """Paper eq. 3 over the evaluated yaws: volume [B, K', N, N], yaws [B, K'] → pose, covariance."""
         p = self.profile
-        window = pose_window(p)
-        mask = None if window is None else peak_window(volume, self.offsets_m, self.offsets_m, yaws, *window)
-        pose, _ = band_moments(windowed_weights(volume, p.beta_pose, mask), self.offsets_m, yaws)
-        if p.pose_estimator == "parabolic":
+        if p.pose_estimator == "parabolic":  # as `softargmax.read_pose`, on the band's yaws
             pose = parabolic_peak(volume, self.offsets_m, self.offsets_m, yaws, p.rotation_step_rad)
+        else:
+            window = pose_window(p)
+            mask = None if window is None else peak_window(volume, self.offsets_m, self.offsets_m, yaws, *window)
+            pose, _ = band_moments(windowed_weights(volume, p.beta_pose, mask), self.offsets_m, yaws)
         _, cov = band_moments(candidate_weights(volume, p.beta_cov).reshape(volume.shape), self.offsets_m, yaws)
         return pose, cov + self.model.cov_floor
 

@@ -36,7 +36,7 @@ from radar_odom.profiles import GridProfile
 from .cfar import make_cfar
 from .correlation import Rotator, candidate_poses, make_correlation
 from .normalise import make_normaliser
-from .softargmax import parabolic_peak, pose_window, soft_argmax
+from .softargmax import candidate_weights, read_pose, weighted_covariance
 from .unet import UNet
 
 MASKINGS = ("learned", "raw", "cfar", "external")
@@ -241,10 +241,8 @@ class MaskedCorrelator(nn.Module):
         """(pose [B, 3], covariance [B, 3, 3]) by soft-argmax with the profile's two βs; the
         covariance includes the profile's quantisation floor (`GridProfile.covariance_floor`)."""
         p = self.profile
-        pose, cov = soft_argmax(volume, self.candidates, p.beta_pose, p.beta_cov, window=pose_window(p))
-        if p.pose_estimator == "parabolic":
-            c = self.candidates
-            pose = parabolic_peak(volume, c[0, :, 0, 0], c[0, 0, :, 1], c[:, 0, 0, 2], p.rotation_step_rad)
+        pose = read_pose(volume, self.candidates, p)
+        cov = weighted_covariance(candidate_weights(volume, p.beta_cov), self.candidates.reshape(-1, 3))
         return pose, cov + self.cov_floor
 
     def forward(self, prev, cur, prev_mask=None, cur_mask=None):

@@ -152,3 +152,16 @@ def parabolic_peak(volume: torch.Tensor, x_m: torch.Tensor, y_m: torch.Tensor, y
     dy = y_m[1] - y_m[0]
     return torch.cat([x_m[ii] + o_i * dx, y_m[jj] + o_j * dy, y0 + o_k * yaw_step_rad], dim=1)
 
+
+def read_pose(volume: torch.Tensor, candidates: torch.Tensor, profile) -> torch.Tensor:
+    """float[B, 3]: the pose a model with ``profile`` reads off volumes float[B, K, N, N] laid out
+    like ``candidates`` float[K, N, N, 3]: the parabolic sub-cell peak, or the ``beta_pose``
+    soft-argmax within the profile's pose window (`pose_window`; every candidate without one).
+    The one definition training, export and calibration share."""
+    c = candidates.to(volume.dtype)
+    if profile.pose_estimator == "parabolic":
+        return parabolic_peak(volume, c[0, :, 0, 0], c[0, 0, :, 1], c[:, 0, 0, 2], profile.rotation_step_rad)
+    window = pose_window(profile)
+    mask = None if window is None else peak_window(volume, c[0, :, 0, 0], c[0, 0, :, 1], c[:, 0, 0, 2], *window)
+    return weighted_mean(windowed_weights(volume, profile.beta_pose, mask).flatten(1), c.reshape(-1, 3))
+

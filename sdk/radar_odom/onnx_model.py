@@ -49,23 +49,6 @@ from .errors import InvalidModelError, ModelMismatchError, ModelNotFoundError
 from .profiles import GridProfile
 
 FORMAT = "radar-odom-onnx/1"
-METADATA_KEYS = (
-    "radar_odom.format",
-    "radar_odom.profile",
-    "radar_odom.form",
-    "radar_odom.sweep_geometry",
-    "radar_odom.inputs",
-    "radar_odom.outputs",
-    "radar_odom.input_shape",
-    "radar_odom.state_shape",
-    "radar_odom.masking",
-    "radar_odom.training_data",
-    "radar_odom.version",
-    "radar_odom.opset",
-    "radar_odom.exporter",
-    "radar_odom.search",
-    "radar_odom.profile_sha256",
-)
 REQUIRED_KEYS = (
     "radar_odom.format",
     "radar_odom.profile",
@@ -74,6 +57,16 @@ REQUIRED_KEYS = (
     "radar_odom.inputs",
     "radar_odom.outputs",
     "radar_odom.input_shape",
+)
+METADATA_KEYS = REQUIRED_KEYS + (
+    "radar_odom.state_shape",
+    "radar_odom.masking",
+    "radar_odom.training_data",
+    "radar_odom.version",
+    "radar_odom.opset",
+    "radar_odom.exporter",
+    "radar_odom.search",
+    "radar_odom.profile_sha256",
 )
 GEOMETRY_KEYS = ("num_azimuths", "num_bins", "range_resolution_m", "range_offset_m")
 
