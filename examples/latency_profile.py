@@ -9,7 +9,9 @@ numpy-FFT reference and a 1000-step memory check, and writes JSON and markdown),
 import argparse
 
 import radar_odom
-from radar_odom.profiling import format_machine, machine_info, profile_model, simulated_pngs
+from radar_odom.latency.stats import format_machine, machine_info
+from radar_odom.latency.sweeps import simulated_pngs
+from radar_odom.latency.timing import profile_model
 
 ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
 ap.add_argument("model", nargs="?", default="cart-0.4", help="shipped model name or .onnx path")

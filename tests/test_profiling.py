@@ -9,15 +9,9 @@ import numpy as np
 import pytest
 
 from radar_odom.profiles import GridProfile
-from radar_odom.profiling import (
-    FFTReference,
-    _rotation_matrix,
-    latency_summary,
-    markdown_report,
-    operator_profile,
-    state_to_image,
-    state_to_spectrum,
-)
+from radar_odom.latency import markdown_report
+from radar_odom.latency.reference import FFTReference, _rotation_matrix, state_to_image, state_to_spectrum
+from radar_odom.latency.stats import latency_summary, operator_profile
 
 
 def small_profile(**kw):
@@ -76,7 +70,7 @@ def test_operator_profile_groups_node_times_per_run(tmp_path):
 
 
 def test_masker_time_sums_the_unet_operator_classes_per_run():
-    from radar_odom.profiling import masker_time
+    from radar_odom.latency.stats import masker_time
 
     per_run = {"FusedConv": np.array([0.002, 0.004]), "MaxPool": np.array([0.001, 0.001]),
                "MatMul": np.array([0.010, 0.020])}
@@ -172,7 +166,7 @@ def test_markdown_report_holds_the_measured_numbers():
 
 
 def test_profiling_does_not_import_torch():
-    code = "import sys, radar_odom.profiling, radar_odom.commands.profile; print('torch' in sys.modules)"
+    code = "import sys, radar_odom.latency, radar_odom.commands.profile; print('torch' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
 
@@ -214,7 +208,7 @@ def test_profile_command_end_to_end(tiny_model, tmp_path, capsys):
 
 @pytest.mark.slow
 def test_rss_stream_in_a_fresh_process(tiny_model):
-    from radar_odom.profiling import rss_stream
+    from radar_odom.latency.memory import rss_stream
 
     r = rss_stream(tiny_model, steps=20, threads=1, every=10)
     assert [s[0] for s in r["samples"]] == [1, 10, 20]

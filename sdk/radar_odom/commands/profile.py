@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 
 HELP = "CPU latency per grid resolution: per stage, per operator class, peak memory, numpy-FFT reference"
-PROFILE_NAMES = ("cart-0.8", "cart-0.4", "cart-0.2")  # radar_odom.profiling.DEFAULT_PROFILES, kept light
+PROFILE_NAMES = ("cart-0.8", "cart-0.4", "cart-0.2")  # radar_odom.latency.DEFAULT_PROFILES, kept light
 
 
 def register(subparsers) -> None:
@@ -46,7 +46,7 @@ def run(args) -> int:
     import shlex
     import sys
 
-    from ..profiling import run_profile
+    from ..latency import run_profile
 
     if args.steps < 200:
         print(f"note: --steps {args.steps} is below 200; p99 over so few steps is rough")

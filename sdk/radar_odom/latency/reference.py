@@ -1,0 +1,118 @@
+"""The numpy (pocketfft) + OpenCV reference of the correlative search, for speed ratios."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def _rotation_matrix(yaw_rad: float, width_px: int) -> np.ndarray:
+    """2×3 ``warpAffine`` map (with WARP_INVERSE_MAP) from output to input pixel (u=col, v=row)
+    that samples ``S(R(yaw)ᵀ p)`` about the image centre: the graph's rotation convention
+    (x = cW − row forward, y = col − cW right)."""
+    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
+    cw = (width_px - 1) / 2
+    return np.array([[c, s, cw * (1 - c - s)], [-s, c, cw * (1 - c + s)]], dtype=np.float64)
+
+
+class FFTReference:
+    """The correlative search of a `GridProfile` in numpy (pocketfft) and OpenCV.
+
+    ``search(prev_spectrum, cur_image)`` takes the previous masked image's half spectrum
+    (complex [W, W//2+1], i.e. the stream state) and the current masked image [W, W] and returns
+    ``(pose [3], covariance [3, 3])`` by the profile's soft-argmax. With ``search_settings``
+    (the ``radar_odom.search`` metadata of a fast-search model) it runs the same coarse-to-fine
+    search: a yaw picked on spectra cropped to ``W / coarse_factor`` px, then the band of
+    ``2b + 1`` yaws and yaw 0 at full resolution; otherwise every candidate.
+    """
+
+    def __init__(self, profile, search_settings: dict | None = None):
+        self.profile = profile
+        self.width = profile.width_px
+        self.n = profile.translation_cells
+        self.yaws = np.asarray(profile.rotations_rad, dtype=np.float64)
+        offsets = np.arange(-self.n, self.n + 1) * profile.resolution_m
+        self.trans = np.stack(np.meshgrid(offsets, offsets, indexing="ij"), axis=-1)  # [N, N, 2]
+        self.settings = search_settings if search_settings and search_settings.get(
+            "band_rotations", len(self.yaws)) < len(self.yaws) else None
+
+    def _rotated(self, image: np.ndarray, yaws) -> np.ndarray:
+        import cv2
+
+        w = image.shape[-1]
+        flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
+        return np.stack([cv2.warpAffine(image, _rotation_matrix(y, w), (w, w), flags=flags,
+                                        borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+                         for y in yaws])
+
+    @staticmethod
+    def _volume(prev_spectrum, rotated, n):
+        """[K, N, N] correlation window, the graph's layout (see correlation.py)."""
+        w = rotated.shape[-1]
+        full = np.fft.irfft2(np.conj(prev_spectrum)[None] * np.fft.rfft2(rotated), s=(w, w))
+        return np.roll(full, (n, n), axis=(-2, -1))[:, : 2 * n + 1, : 2 * n + 1][:, :, ::-1]
+
+    def _crop(self, spectrum, low):
+        half = low // 2
+        rows = np.r_[0:half, self.width - half:self.width]
+        out = spectrum[rows, : half + 1].copy()
+        out[half, :] = 0
+        out[:, half] = 0
+        return out
+
+    def band(self, prev_spectrum, cur_spectrum) -> np.ndarray:
+        """Indices of the yaws evaluated at full resolution."""
+        k = len(self.yaws)
+        if self.settings is None:
+            return np.arange(k)
+        f, stride = int(self.settings["coarse_factor"]), int(self.settings["coarse_stride"])
+        size = int(self.settings["band_rotations"])
+        low = self.width // f
+        centre = k // 2
+        idx = np.array(sorted({*range(centre, -1, -stride), *range(centre, k, stride)}))
+        cur_low = np.fft.irfft2(self._crop(cur_spectrum, low), s=(low, low)).astype(np.float32)
+        rotated = self._rotated(cur_low, self.yaws[idx])
+        vol = self._volume(self._crop(prev_spectrum, low), rotated, max(1, math.ceil(self.n / f)))
+        norm = np.sqrt((rotated.astype(np.float64) ** 2).reshape(len(idx), -1).sum(axis=1) + 1e-12)
+        best = int(idx[np.argmax(vol.reshape(len(idx), -1).max(axis=1) / norm)])
+        start = min(max(best - size // 2, 0), k - size)
+        return np.arange(start, start + size)
+
+    def search(self, prev_spectrum: np.ndarray, cur_image: np.ndarray):
+        cur_image = np.ascontiguousarray(cur_image, dtype=np.float32)
+        cur_spectrum = np.fft.rfft2(cur_image) if self.settings is not None else None
+        idx = self.band(prev_spectrum, cur_spectrum)
+        # the fast graph also scores yaw 0 (the unrotated image) whatever the band
+        idx = np.union1d(idx, [len(self.yaws) // 2])
+        rotated = self._rotated(cur_image, self.yaws[idx])
+        rotated[np.flatnonzero(idx == len(self.yaws) // 2)] = cur_image  # yaw 0: the image itself
+        vol = self._volume(prev_spectrum, rotated, self.n)
+        cand = np.concatenate([np.broadcast_to(self.trans, (len(idx), *self.trans.shape)),
+                               np.broadcast_to(self.yaws[idx][:, None, None, None],
+                                               (len(idx), *self.trans.shape[:2], 1))], axis=-1)
+        cand = cand.reshape(-1, 3)
+        flat = vol.reshape(-1).astype(np.float64)
+
+        def weights(beta):
+            z = beta * flat
+            e = np.exp(z - z.max())
+            return e / e.sum()
+
+        w = weights(self.profile.beta_pose)
+        pose = w @ cand
+        wc = weights(self.profile.beta_cov)
+        centred = cand - wc @ cand
+        # the same quantisation floor the graph adds (GridProfile.covariance_floor)
+        cov = (centred * wc[:, None]).T @ centred + np.diag(self.profile.covariance_floor)
+        return pose, cov
+
+
+def state_to_image(state: np.ndarray, width_px: int) -> np.ndarray:
+    """The masked image [W, W] whose half spectrum is the stream state [1, 2, W, W//2+1]."""
+    spec = state[0, 0].astype(np.float64) + 1j * state[0, 1].astype(np.float64)
+    return np.fft.irfft2(spec, s=(width_px, width_px)).astype(np.float32)
+
+
+def state_to_spectrum(state: np.ndarray) -> np.ndarray:
+    return state[0, 0].astype(np.float64) + 1j * state[0, 1].astype(np.float64)
+
