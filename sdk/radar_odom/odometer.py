@@ -73,6 +73,24 @@ BRIDGED = "bridged"
 
 
 @dataclass(frozen=True)
+class PreparedSweep:
+    """A sweep made ready for `RadarOdometer.step` by `RadarOdometer.prepare`.
+
+    The per-sweep work that does not depend on the stream (the degeneracy test and the graph
+    input, e.g. the polar-to-Cartesian resampling) done ahead, possibly on another thread, so
+    that `step` only runs the graph. ``problem``: `sweep_problem`'s verdict; ``input``: the
+    graph input, or None when the sweep is degenerate or the model cannot take it (then `step`
+    raises `ModelMismatchError` in its turn, as for the bare scan).
+    """
+
+    scan: RadarScan
+    problem: str | None
+    input: np.ndarray | None
+    ready: bool = field(default=False, repr=False)  # False: step() works from the scan alone
+    owner: object = field(default=None, repr=False, compare=False)  # the odometer that prepared it
+
+
+@dataclass(frozen=True)
 class Estimate:
     """One odometry step.
 
@@ -374,21 +392,49 @@ class RadarOdometer:
                              min_coverage=self.min_coverage)
 
     # --- the step -------------------------------------------------------------------------
-    def step(self, scan: RadarScan, odometry: ExternalOdometry | dict | None = None) -> Estimate | None:
+    def prepare(self, scan: RadarScan) -> PreparedSweep:
+        """The stream-independent part of `step` for ``scan``, done now (any thread may call it).
+
+        ``odo.step(odo.prepare(scan))`` gives exactly what ``odo.step(scan)`` gives; preparing the
+        next sweeps on a worker thread while `step` runs the graph overlaps the two (what
+        `radar_odom.pipeline.iter_estimates` does). Reads only the odometer's configuration.
+        """
+        if not isinstance(scan, RadarScan):
+            raise TypeError(f"prepare() takes a RadarScan, got {type(scan).__name__}")
+        try:
+            self._check_geometry(scan)
+        except ModelMismatchError:  # raised by step(), in the stream's order
+            return PreparedSweep(scan, None, None, ready=False, owner=self)
+        problem = self.sweep_problem(scan)
+        x = self._sweep_input(scan) if problem is None else None
+        return PreparedSweep(scan, problem, x, ready=True, owner=self)
+
+    def iter_estimates(self, source, *, prefetch: int = 2, on_error: str = "skip"):
+        """`radar_odom.pipeline.iter_estimates` with this odometer (see there)."""
+        from .pipeline import iter_estimates
+
+        return iter_estimates(source, self, prefetch=prefetch, on_error=on_error)
+
+    def step(self, scan: RadarScan | PreparedSweep,
+             odometry: ExternalOdometry | dict | None = None) -> Estimate | None:
         """Add one sweep; return its pose relative to the previous sweep (None for the first).
 
         Args:
-            scan: the new sweep.
+            scan: the new sweep, or the `PreparedSweep` that `prepare` made of it.
             odometry: optional `ExternalOdometry` (or a dict of its fields): wheel speed and/or
                 yaw rate over the interval since the previous sweep, fused with the match in
                 information form like the constant-velocity prediction (also with the prior
                 off). Ignored for the first sweep of a stream.
         """
+        prepared = None
+        if isinstance(scan, PreparedSweep):
+            prepared = scan if scan.ready and scan.owner is self else None
+            scan = scan.scan
         if not isinstance(scan, RadarScan):
             raise TypeError(f"step() takes a RadarScan, got {type(scan).__name__}")
         odometry = ExternalOdometry.coerce(odometry)
         with self._lock:
-            return self._step(scan, odometry)
+            return self._step(scan, odometry, prepared)
 
     def skip(self, timestamp_us: int, reason: str = "unreadable", source: str = "sweep") -> Estimate | None:
         """Record a sweep that exists but cannot be used (e.g. its file is corrupt).
@@ -428,16 +474,16 @@ class RadarOdometer:
                     )
         return not self._stamps
 
-    def _step(self, scan: RadarScan, odometry) -> Estimate | None:
+    def _step(self, scan: RadarScan, odometry, prepared: PreparedSweep | None = None) -> Estimate | None:
         self._check_geometry(scan)
         ts = scan.timestamp_us
         first = self._check_time(ts, scan.source)
-        problem = self.sweep_problem(scan)
+        problem = self.sweep_problem(scan) if prepared is None else prepared.problem
         if first:
             # A stream must start from a sweep that can be matched: a degenerate first sweep is
             # recorded at identity but never becomes the reference.
             if problem is None:
-                self._ref_feed = self._run_first(self._sweep_input(scan))
+                self._ref_feed = self._run_first(self._sweep_input(scan) if prepared is None else prepared.input)
                 self._set_reference(0)
             self._append(np.eye(3), ts)
             return None
@@ -445,7 +491,7 @@ class RadarOdometer:
         odo_rel = odometry.relative_pose(dt_s) if odometry is not None else None
         if problem is not None:
             return self._degenerate(problem, ts, dt_s, odo_rel)
-        x = self._sweep_input(scan)
+        x = self._sweep_input(scan) if prepared is None else prepared.input
         if self._ref_feed is None:
             # every earlier sweep of this stream was degenerate: nothing to match against yet,
             # so this one gets the prior and becomes the reference
