@@ -61,6 +61,19 @@ def test_run_writes_outputs_and_prints_metrics(model_path, drive, tmp_path, caps
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_run_reports_its_pace_with_and_without_the_pipeline(model_path, drive, tmp_path, capsys):
+    outs = {}
+    for flag in ([], ["--no-pipeline"]):
+        out = tmp_path / ("plain" if flag else "pipe")
+        assert main(["run", str(drive), "--model", str(model_path), "-o", str(out), "--no-plot", *flag]) == 0
+        pace = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("pace (")]
+        assert len(pace) == 1 and ("no pipeline" in pace[0]) == bool(flag)
+        assert f"{FRAMES} sweeps in" in pace[0] and "sweeps/s" in pace[0] and "decode+parse" in pace[0]
+        assert "step" in pace[0] and "wall / max(stages) = " in pace[0]
+        outs[out.name] = (out / "estimates.csv").read_bytes(), (out / "trajectory.tum").read_bytes()
+    assert outs["pipe"] == outs["plain"]  # the same results either way
+
+
 def test_run_accepts_a_model_name_and_lists_names_when_unknown(drive, tmp_path, capsys):
     assert main(["run", str(drive), "--model", "no-such-model", "-o", str(tmp_path)]) == 1
     err = capsys.readouterr().err

@@ -18,6 +18,12 @@ drive. Outputs in ``out_dir``:
   missing pair, and the KITTI file (which has no timestamps) is not written.
 - ``skipped.csv`` (only when a sweep was skipped): index, file, reason and message of each.
 
+Pace: the next sweeps are decoded, parsed and prepared (`RadarOdometer.prepare`) on a worker
+thread while the graph runs on the calling one (``prefetch`` sweeps ahead; 0: one after the
+other); the outputs are the same either way. ``RunResult.throughput`` holds the sweeps/s and
+the two stages' medians (`radar_odom.pipeline.throughput`); the loop itself is
+`radar_odom.pipeline.iter_estimates`, the iterator API for library users.
+
 Bad sweeps (``on_error``): a sweep that cannot be read (`ScanFormatError`), or whose own
 timestamp is garbage (its first azimuth's time disagrees with its file name by more than
 ``NAME_TIME_TOLERANCE_S`` and breaks the time order), is *skipped* by default: reported in
@@ -39,6 +45,7 @@ import numpy as np
 from ._progress import progress
 from .errors import ConfigError, OutputError, RunAborted, ScanFormatError, StreamError
 from .odometer import Estimate, RadarOdometer
+from .pipeline import DEFAULT_PREFETCH, NAME_TIME_TOLERANCE_S, Throughput, iter_estimates, throughput  # noqa: F401
 
 ESTIMATE_COLUMNS = (
     "timestamp_us", "prev_timestamp_us", "x_m", "y_m", "yaw_rad",
@@ -48,9 +55,6 @@ ESTIMATE_COLUMNS = (
 KITTI_STEP = 4  # frames between segment starts at 4 Hz (radar convention; devkit uses 10)
 KITTI_POOLING = "segments"
 ON_ERROR = ("skip", "stop")
-# a sweep whose first-azimuth time is further than this from its file name's time has a corrupt
-# header (names are the first (Oxford, RADIATE), middle (Boreas) or last (MulRan) azimuth's time)
-NAME_TIME_TOLERANCE_S = 1.0
 
 
 @dataclass
@@ -66,6 +70,7 @@ class RunResult:
     files: dict = field(default_factory=dict)
     seconds_per_step: float = float("nan")
     skipped: list = field(default_factory=list)  # dicts: index, path, reason, message
+    throughput: Throughput | None = None  # the pace: sweeps/s, stage medians (`pipeline.throughput`)
 
     @property
     def complete(self) -> bool:
@@ -234,18 +239,20 @@ def write_skipped_csv(path, skipped: list[dict]) -> Path:
 
 
 def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float = 1.0, show_progress=True,
-                 plot=True, title=None, motion_prior=True, on_error: str = "skip") -> RunResult:
+                 plot=True, title=None, motion_prior=True, on_error: str = "skip",
+                 prefetch: int = DEFAULT_PREFETCH) -> RunResult:
     """Run ``model`` (path or `RadarOdometer`) over the recording ``seq_dir``; write outputs.
 
     ``motion_prior`` (True, False or a `MotionPriorConfig`) is passed to the `RadarOdometer`
     built from a path; an odometer given as ``model`` keeps its own setting. ``on_error``:
     ``"skip"`` (default) or ``"stop"`` for a sweep that cannot be used (module docstring).
+    ``prefetch``: sweeps decoded ahead on a worker thread while the graph runs
+    (`radar_odom.pipeline.iter_estimates`; 0: no worker). The outputs do not depend on it;
+    ``RunResult.throughput`` reports the pace (`radar_odom.pipeline.throughput`).
 
     Raises `OutputError` when ``out_dir`` cannot be a folder, `RunAborted` (``on_error="stop"``,
     after writing the outputs so far), and the typed errors of `read_sequence` / `RadarOdometer`.
     """
-    import time
-
     from .formats import read_sequence
 
     if on_error not in ON_ERROR:
@@ -257,73 +264,52 @@ def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float = 1.
     odo.reset()
     estimates: list[Estimate] = []
     prev_ts: list[int] = []
-    skipped: list[dict] = []
     last_ts = None
-    name_offset_us = 0  # first-azimuth time − file-name time of the last sweep read
-    t0 = time.perf_counter()
+    stream = iter_estimates(seq, odo, prefetch=prefetch, on_error=on_error)
 
     def finish(complete: bool) -> RunResult:
-        wall = time.perf_counter() - t0
-        return _write_outputs(odo, seq, seq_dir, out_dir, estimates, prev_ts, skipped, wall, plot, title,
-                              complete)
+        stream.close()
+        return _write_outputs(odo, seq, seq_dir, out_dir, estimates, prev_ts, stream.skipped,
+                              stream.throughput(), plot, title, complete)
 
-    for i in progress(range(len(seq)), total=len(seq), desc=f"odometry {Path(seq_dir).name}", unit="sweep",
-                      disable=not show_progress):
-        path, name_us = seq.paths[i], int(seq.timestamps_us[i])
-        problem = None
-        try:
-            scan = seq.scan(i)
-        except ScanFormatError as exc:
-            problem = ("unreadable", exc)
-        if problem is None:
+    def aborted(exc, why: str = "") -> RunAborted:
+        result = finish(complete=False)
+        return RunAborted(
+            f"{exc} [stopped at sweep {stream.index} of {len(seq)}{why}; the outputs for the "
+            f"{len(result.timestamps_us)} sweeps before it are in {out_dir}]", result, exc)
+
+    done = 0
+    bar = progress(total=len(seq), desc=f"odometry {Path(seq_dir).name}", unit="sweep", disable=not show_progress)
+    try:
+        with stream:
             try:
-                est = odo.step(scan)
+                for _i, ts, est in stream:
+                    if est is not None:
+                        estimates.append(est)
+                        prev_ts.append(last_ts)
+                    last_ts = ts
+                    bar.update(stream.count - done)
+                    done = stream.count
             except StreamError as exc:
-                off_s = abs(scan.timestamp_us - name_us) * 1e-6
-                if off_s <= NAME_TIME_TOLERANCE_S:
-                    # the stream itself is broken there (a gap beyond max_gap_s): not one sweep's
-                    # fault, so the run stops, with the outputs so far written
-                    result = finish(complete=False)
-                    raise RunAborted(
-                        f"{exc} [stopped at sweep {i} of {len(seq)}; the outputs for the "
-                        f"{len(result.timestamps_us)} sweeps before it are in {out_dir}]", result, exc) from None
-                problem = ("bad_timestamp", ScanFormatError(
-                    f"{path}: first azimuth time {scan.timestamp_us} µs is {off_s:.3g} s from the file name's "
-                    f"time ({exc}); the sweep's header is corrupt"))
-            else:
-                name_offset_us = scan.timestamp_us - name_us
-        if problem is not None:
-            reason, exc = problem
-            if on_error == "stop":
-                result = finish(complete=False)
-                raise RunAborted(
-                    f"{exc} [stopped at sweep {i} of {len(seq)} (on_error='stop'); the outputs for the "
-                    f"{len(result.timestamps_us)} sweeps before it are in {out_dir}]", result, exc) from None
-            ts = name_us + name_offset_us
-            entry = {"index": i, "path": str(path), "reason": reason, "message": str(exc), "timestamp_us": ts}
-            try:
-                est = odo.skip(ts, reason, source=str(path))
-            except StreamError as stream_exc:  # not even its file name's time fits: leave it out
-                entry["message"] += f" (left out of the trajectory: {stream_exc})"
-                entry["timestamp_us"] = ""
-                skipped.append(entry)
-                continue
-            skipped.append(entry)
-        if est is not None:
-            estimates.append(est)
-            prev_ts.append(last_ts)
-        last_ts = odo._stamps[-1] if odo._stamps else None
+                # the stream itself is broken there (a gap beyond max_gap_s): not one sweep's
+                # fault, so the run stops, with the outputs so far written
+                raise aborted(exc) from None
+            except ScanFormatError as exc:  # on_error="stop": the sweep that could not be used
+                raise aborted(exc, " (on_error='stop')") from None
+        bar.update(len(seq) - done)
+    finally:
+        bar.close()
     return finish(complete=True)
 
 
-def _write_outputs(odo, seq, seq_dir, out_dir, estimates, prev_ts, skipped, wall, plot, title,
+def _write_outputs(odo, seq, seq_dir, out_dir, estimates, prev_ts, skipped, pace: Throughput, plot, title,
                    complete: bool) -> RunResult:
     from .metrics import covariance_jitter
     from .trajectory import write_kitti, write_tum
 
     traj = odo.trajectory
     result = RunResult(traj.poses, traj.timestamps_us, estimates, None,
-                       seconds_per_step=wall / max(len(traj), 1), skipped=list(skipped))
+                       seconds_per_step=pace.wall_s / max(len(traj), 1), skipped=list(skipped), throughput=pace)
     result.files["tum"] = write_tum(out_dir / "trajectory.tum", traj.timestamps_us, traj.poses)
     result.files["kitti"] = write_kitti(out_dir / "trajectory.kitti", traj.poses)
     result.files["estimates"] = write_estimates_csv(out_dir / "estimates.csv", estimates, prev_ts)

@@ -30,6 +30,9 @@ def register(subparsers) -> None:
                    help="a sweep that cannot be read (corrupt file, garbage timestamps): 'skip' reports it, "
                         "bridges the trajectory across it (flagged degenerate) and exits with status 3; "
                         "'stop' writes the outputs so far and exits with status 1 (default: skip)")
+    p.add_argument("--no-pipeline", action="store_true",
+                   help="decode each sweep on the main thread when its turn comes, instead of reading the next "
+                        "ones ahead on a worker thread while the graph runs (same results; to compare the pace)")
     p.add_argument("--no-plot", action="store_true", help="do not draw trajectory.png (no matplotlib needed)")
     p.add_argument("--no-motion-prior", action="store_true",
                    help="report the raw matches: no fusion with the constant-velocity motion prior "
@@ -43,6 +46,7 @@ def run(args) -> int:
     from pathlib import Path
 
     from ..errors import GroundTruthWarning, OutputError, RadarOdomError
+    from ..pipeline import DEFAULT_PREFETCH
     from ..pretrained import default_model_name, resolve_model
     from ..run import format_metrics, run_sequence
 
@@ -53,7 +57,7 @@ def run(args) -> int:
         try:
             result = run_sequence(args.sequence, model, out, threads=args.threads, max_gap_s=args.max_gap_s,
                                   plot=not args.no_plot, motion_prior=not args.no_motion_prior,
-                                  on_error=args.on_error)
+                                  on_error=args.on_error, prefetch=0 if args.no_pipeline else DEFAULT_PREFETCH)
         except RadarOdomError:
             _print_warnings(caught, sys.stderr)
             raise
@@ -71,6 +75,9 @@ def run(args) -> int:
     print(text if text else "no ground truth in this recording: no metrics")
     for kind, path in result.files.items():
         print(f"{kind}: {path}")
+    if result.throughput is not None:
+        mode = "no pipeline" if args.no_pipeline else f"pipelined, {DEFAULT_PREFETCH} sweeps ahead"
+        print(f"pace ({mode}): {result.throughput.format()}")
     for s in result.skipped:
         print(f"radar-odom run: skipped sweep {s['index']} ({s['reason']}): {s['message']}", file=sys.stderr)
     if result.skipped:
