@@ -1,0 +1,450 @@
+"""The radar-odom model file: what an exported ONNX file promises, in one place.
+
+The exporter (``radar_odom_export.onnx_export``) writes every fact the runtime needs into the
+file's ``metadata_props`` under ``radar_odom.*`` keys with `build_metadata`; the runtime reads
+them back with `ModelInfo.from_metadata` and holds the graph onnxruntime loaded to them with
+`check_signature`. Writer and reader share this module, so nothing about a model is re-typed.
+
+The keys (`SCHEMA`; required: always, or for stream-form / polar models only):
+
+- ``radar_odom.format`` (text, required): `FORMAT`.
+- ``radar_odom.profile`` (JSON object, required): the `GridProfile` (`GridProfile.to_metadata`).
+- ``radar_odom.form`` (text, required): ``"stream"`` (inputs: current sweep + previous state;
+  outputs: pose, covariance, state) or ``"pair"`` (inputs: previous and current sweep; outputs:
+  pose, covariance).
+- ``radar_odom.sweep_geometry`` (JSON object, required): ``{num_azimuths, num_bins,
+  range_resolution_m, range_offset_m}`` of the sweeps the model was trained on.
+- ``radar_odom.inputs`` / ``radar_odom.outputs`` (JSON arrays, required): tensor names, in
+  graph order.
+- ``radar_odom.input_shape`` (JSON array, required): shape of one sweep input (``[1, W, W]``
+  Cartesian or ``[1, A, B']`` polar).
+- ``radar_odom.state_shape`` (JSON array, required for the stream form): shape of the stream
+  state (single mode: the half spectrum ``[1, 2, W, W//2 + 1]``; dual mode: the sweep input's).
+- ``radar_odom.polar_input`` (JSON object, required for polar models): ``{num_bins,
+  bin_factor}``, how the polar sweep is reduced before the graph.
+- ``radar_odom.profile_sha256`` (hex): SHA-256 of the profile text (`profile_digest`); when
+  present, a profile edited by hand is refused.
+- ``radar_odom.search`` (JSON object): settings of the coarse-to-fine yaw search
+  (``fast_search``); absent when every yaw candidate is scored.
+- provenance, optional (a file without them reads the `MetadataKey.default` stated below):
+  ``radar_odom.masking``, ``radar_odom.training_data``, ``radar_odom.version``,
+  ``radar_odom.opset``, ``radar_odom.exporter``, ``radar_odom.torch_version``.
+
+Validation: a missing required key, text that is not JSON, a value of the wrong type or out of
+range, a profile inconsistent with the sweep input's shape (e.g. ``width_px`` against
+``[1, W, W]``) or with its digest → `InvalidModelError` (a `ModelMismatchError`) naming the
+key. `check_signature` then holds the graph's real inputs and outputs (names, shapes, float
+tensors) to the metadata, and the stream state's shape to the profile (`check_state_shape`).
+A scale change that keeps every shape (``resolution_m`` edited together with its digest)
+cannot be detected from the file.
+
+This module imports neither torch nor onnxruntime.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from dataclasses import MISSING, dataclass, fields
+
+from .errors import InvalidModelError, ModelMismatchError
+from .profiles import GridProfile
+
+FORMAT = "radar-odom-onnx/1"
+FORMS = ("stream", "pair")
+DEFAULT_OPSET = 18  # the ONNX opset exports write unless asked for another (CLI ``--opset``)
+
+
+@dataclass(frozen=True)
+class MetadataKey:
+    """One ``radar_odom.*`` metadata entry: its type, when it is required, what it means."""
+
+    key: str
+    kind: str  # "text", "json-object", "json-array", "integer" (as text), "sha256"
+    required: str  # "always", "stream" (stream form), "polar" (polar input), "optional"
+    doc: str
+    default: object = None  # what a file without an optional key reads as
+
+
+SCHEMA: tuple[MetadataKey, ...] = (
+    MetadataKey("radar_odom.format", "text", "always", f"the file format, {FORMAT!r}"),
+    MetadataKey("radar_odom.profile", "json-object", "always", "the GridProfile"),
+    MetadataKey("radar_odom.form", "text", "always", "'stream' or 'pair'"),
+    MetadataKey("radar_odom.sweep_geometry", "json-object", "always", "geometry of the training sweeps"),
+    MetadataKey("radar_odom.inputs", "json-array", "always", "input tensor names, in graph order"),
+    MetadataKey("radar_odom.outputs", "json-array", "always", "output tensor names, in graph order"),
+    MetadataKey("radar_odom.input_shape", "json-array", "always", "shape of one sweep input"),
+    MetadataKey("radar_odom.state_shape", "json-array", "stream", "shape of the stream state"),
+    MetadataKey("radar_odom.polar_input", "json-object", "polar", "{num_bins, bin_factor} of a polar input"),
+    MetadataKey("radar_odom.profile_sha256", "sha256", "optional", "SHA-256 of the profile text"),
+    MetadataKey("radar_odom.search", "json-object", "optional",
+                "coarse-to-fine yaw search settings; absent: every yaw candidate is scored"),
+    MetadataKey("radar_odom.masking", "text", "optional", "masking of the model", "unknown"),
+    MetadataKey("radar_odom.training_data", "text", "optional", "JSON provenance of the weights", ""),
+    MetadataKey("radar_odom.version", "text", "optional", "radar-odom version that exported it", ""),
+    MetadataKey("radar_odom.opset", "integer", "optional", "ONNX opset written"),
+    MetadataKey("radar_odom.exporter", "text", "optional", "'dynamo' or 'torchscript'", ""),
+    MetadataKey("radar_odom.torch_version", "text", "optional", "torch version of the export", ""),
+)
+KEYS = {k.key: k for k in SCHEMA}
+REQUIRED_KEYS = tuple(k.key for k in SCHEMA if k.required == "always")
+GEOMETRY_KEYS = ("num_azimuths", "num_bins", "range_resolution_m", "range_offset_m")
+MAX_ROTATIONS = 7201  # candidates; a 0.05° step over ±180°
+
+
+def profile_digest(profile_text: str) -> str:
+    """SHA-256 hex of the ``radar_odom.profile`` metadata text (``radar_odom.profile_sha256``)."""
+    return hashlib.sha256(profile_text.encode("utf-8")).hexdigest()
+
+
+def expected_input_shape(profile: GridProfile, geometry: dict, polar_input: dict | None) -> tuple[int, ...]:
+    """The sweep input's shape that follows from the profile: ``(1, W, W)``, or ``(1, A, B')``."""
+    if profile.input_kind == "polar":
+        return (1, int(geometry["num_azimuths"]), int(polar_input["num_bins"]))
+    return (1, profile.width_px, profile.width_px)
+
+
+def expected_state_shape(profile: GridProfile, input_shape: tuple[int, ...]) -> tuple[int, ...]:
+    """The stream state's shape: the half spectrum (single mode) or the previous sweep (dual)."""
+    if profile.mode == "dual":
+        return tuple(input_shape)
+    return (1, 2, profile.width_px, profile.width_px // 2 + 1)
+
+
+_TYPE_NAMES = {dict: "object", list: "array", str: "string"}
+# GridProfile fields whose range its own checks leave open (a negative window, a zero step...)
+_PROFILE_RANGES = {
+    "max_translation_m": (0.0, False), "rotation_range_rad": (0.0, False),
+    "rotation_step_rad": (0.0, True), "beta_pose": (0.0, True), "beta_cov": (0.0, True),
+    "near_range_m": (0.0, False), "unet_base_channels": (1, False), "unet_depth": (0, False),
+    "cov_floor_cells": (0.0, False), "pose_window_cells": (0, False),
+}
+
+
+class _Validator:
+    """Typed reads of one metadata dict, each failure an `InvalidModelError` naming the key."""
+
+    def __init__(self, meta: dict, source: str):
+        self.meta, self.source = meta, source
+
+    def fail(self, key: str, what: str):
+        raise InvalidModelError(f"{self.source}: metadata {key!r} {what}; re-export the model with `radar-odom export`")
+
+    def json(self, key: str, kind, required: bool = True):
+        if key not in self.meta:
+            if required:
+                self.fail(key, "is missing")
+            return None
+        try:
+            value = json.loads(self.meta[key])
+        except (ValueError, RecursionError) as exc:
+            self.fail(key, f"is not valid JSON ({str(exc)[:80]})")
+        if value is None and not required:
+            return None
+        if not isinstance(value, kind):
+            self.fail(key, f"must be a JSON {_TYPE_NAMES.get(kind, kind.__name__)}, got {type(value).__name__}")
+        return value
+
+    def check_int(self, d: dict, k: str, key: str, low: int | None = None) -> int:
+        x = d.get(k, MISSING)
+        if x is MISSING:
+            self.fail(key, f"lacks {k!r}")
+        if isinstance(x, bool) or not isinstance(x, int):
+            self.fail(key, f"field {k!r} must be an integer, got {x!r}")
+        if low is not None and x < low:
+            self.fail(key, f"field {k!r} must be ≥ {low}, got {x}")
+        return x
+
+    def check_float(self, d: dict, k: str, key: str, low: float | None = None, open_low: bool = False) -> float:
+        x = d.get(k, MISSING)
+        if x is MISSING:
+            self.fail(key, f"lacks {k!r}")
+        if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
+            self.fail(key, f"field {k!r} must be a finite number, got {x!r}")
+        if low is not None and (x <= low if open_low else x < low):
+            self.fail(key, f"field {k!r} must be {'>' if open_low else '≥'} {low:g}, got {x!r}")
+        return float(x)
+
+    def names(self, key: str, count: int | None) -> tuple[str, ...]:
+        value = self.json(key, list)
+        if not value or not all(isinstance(n, str) and n for n in value) or len(set(value)) != len(value):
+            self.fail(key, f"must be a list of distinct tensor names, got {value!r:.80}")
+        if count is not None and len(value) != count:
+            self.fail(key, f"must name {count} tensors, got {len(value)}")
+        return tuple(value)
+
+    def shape(self, key: str, required: bool = True) -> tuple[int, ...] | None:
+        value = self.json(key, list, required=required)
+        if value is None:
+            return None
+        if not value or len(value) > 8 or not all(isinstance(n, int) and not isinstance(n, bool) and 0 < n < 2**31
+                                                  for n in value):
+            self.fail(key, f"must be a list of positive integer dimensions, got {value!r:.80}")
+        return tuple(value)
+
+    def integer(self, key: str) -> int | None:
+        text = self.meta.get(key)
+        if text is None:
+            return KEYS[key].default
+        t = text.strip()
+        if not (t.isascii() and t.isdigit() and len(t) < 7):
+            self.fail(key, f"is {text[:40]!r}, not an integer")
+        return int(t)
+
+    def text(self, key: str) -> str:
+        return self.meta.get(key, KEYS[key].default)
+
+    def profile(self) -> GridProfile:
+        key = "radar_odom.profile"
+        text = self.meta[key]
+        digest = self.meta.get("radar_odom.profile_sha256")
+        if digest is not None and digest.strip().lower() != profile_digest(text):
+            self.fail(key, "does not match its digest 'radar_odom.profile_sha256' (the profile was edited)")
+        d = self.json(key, dict)
+        kw = {}
+        for f in fields(GridProfile):
+            if f.name not in d:
+                if f.default is MISSING:
+                    self.fail(key, f"lacks {f.name!r}")
+                continue
+            x = d[f.name]
+            kind = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", "")
+            if kind == "float":
+                self.check_float(d, f.name, key)
+                x = float(x)
+            elif kind == "int":
+                self.check_int(d, f.name, key)
+            elif kind == "str" and not isinstance(x, str):
+                self.fail(key, f"field {f.name!r} must be a string, got {x!r}")
+            if f.name in _PROFILE_RANGES:
+                low, open_low = _PROFILE_RANGES[f.name]
+                if x < low or (open_low and x == low):
+                    self.fail(key, f"field {f.name!r} must be {'>' if open_low else '≥'} {low}, got {x!r}")
+            kw[f.name] = x
+        for name, cap in (("width_px", 2**16), ("unet_depth", 16), ("mask_downsample", 2**10),
+                          ("unet_base_channels", 2**12), ("pose_window_cells", 2**16)):
+            if name in kw and kw[name] > cap:
+                self.fail(key, f"field {name!r} is implausibly large ({kw[name]}; at most {cap})")
+        if "rotation_range_rad" in kw and kw["rotation_range_rad"] > math.pi:
+            self.fail(key, f"field 'rotation_range_rad' must be ≤ π, got {kw['rotation_range_rad']!r}")
+        step = kw.get("rotation_step_rad", GridProfile.rotation_step_rad)
+        rng = kw.get("rotation_range_rad", GridProfile.rotation_range_rad)
+        if 2 * rng / step + 1 > MAX_ROTATIONS:
+            self.fail(key, f"asks for {2 * rng / step + 1:.3g} yaw candidates (at most {MAX_ROTATIONS})")
+        try:
+            return GridProfile(**kw)
+        except (ValueError, TypeError, ZeroDivisionError, OverflowError) as exc:
+            self.fail(key, f"is inconsistent ({exc})")
+
+
+@dataclass(frozen=True)
+class ModelInfo:
+    """Everything the metadata of a radar-odom ONNX file says (see the module docstring)."""
+
+    profile: GridProfile
+    form: str
+    sweep_geometry: dict
+    inputs: tuple[str, ...]
+    outputs: tuple[str, ...]
+    input_shape: tuple[int, ...]
+    state_shape: tuple[int, ...] | None
+    polar_input: dict | None
+    masking: str
+    training_data: str
+    version: str
+    opset: int | None
+    exporter: str
+    source: str
+    search: dict | None = None  # fast-search settings; None: every yaw candidate is scored
+    torch_version: str = ""
+
+    @classmethod
+    def from_metadata(cls, meta: dict[str, str], source: str = "model") -> ModelInfo:
+        """Parse and validate ``radar_odom.*`` metadata.
+
+        Raises `ModelMismatchError` if it is not a radar-odom model at all, `InvalidModelError`
+        (naming the key) if a required key is missing, not JSON, of the wrong type, out of range
+        or inconsistent with another (see the module docstring).
+        """
+        if not isinstance(meta, dict):
+            raise InvalidModelError(f"{source}: metadata must be a dict of strings, got {type(meta).__name__}")
+        if meta.get("radar_odom.format") != FORMAT or "radar_odom.profile" not in meta:
+            raise ModelMismatchError(
+                f"{source}: not a radar-odom model (metadata 'radar_odom.format' is "
+                f"{meta.get('radar_odom.format')!r}, expected {FORMAT!r}); export one with "
+                "`radar-odom export model.pt`"
+            )
+        bad = [k for k, v in meta.items() if not isinstance(k, str) or not isinstance(v, str)]
+        if bad:
+            raise InvalidModelError(f"{source}: metadata {bad[0]!r} is not text")
+        missing = [k for k in REQUIRED_KEYS if k not in meta]
+        if missing:
+            raise InvalidModelError(
+                f"{source}: metadata lacks {', '.join(repr(k) for k in missing)}; the file was edited "
+                "or written by a foreign tool — re-export it with `radar-odom export`"
+            )
+        v = _Validator(meta, source)
+        form = meta["radar_odom.form"]
+        if form not in FORMS:
+            raise InvalidModelError(f"{source}: metadata 'radar_odom.form' is {form!r}, neither 'stream' nor 'pair'")
+        profile = v.profile()
+        geometry = v.json("radar_odom.sweep_geometry", dict)
+        for k in ("num_azimuths", "num_bins"):
+            v.check_int(geometry, k, "radar_odom.sweep_geometry", low=2)
+        v.check_float(geometry, "range_resolution_m", "radar_odom.sweep_geometry", low=0.0, open_low=True)
+        v.check_float(geometry, "range_offset_m", "radar_odom.sweep_geometry")
+        inputs = v.names("radar_odom.inputs", 2)
+        outputs = v.names("radar_odom.outputs", None)
+        for need in ("pose", "covariance") + (("state",) if form == "stream" else ()):
+            if need not in outputs:
+                raise InvalidModelError(f"{source}: metadata 'radar_odom.outputs' {outputs} lacks {need!r}")
+        input_shape = v.shape("radar_odom.input_shape")
+        state = v.shape("radar_odom.state_shape", required=form == "stream")
+        polar = v.json("radar_odom.polar_input", dict, required=profile.input_kind == "polar")
+        if polar is not None:
+            v.check_int(polar, "num_bins", "radar_odom.polar_input", low=1)
+            v.check_int(polar, "bin_factor", "radar_odom.polar_input", low=1)
+            if polar["num_bins"] * polar["bin_factor"] > geometry["num_bins"]:
+                raise InvalidModelError(
+                    f"{source}: metadata 'radar_odom.polar_input' reads {polar['num_bins']} × "
+                    f"{polar['bin_factor']} bins, more than the sweep geometry's {geometry['num_bins']}"
+                )
+        # the sweep input's shape follows from the profile: a hand-edited grid is caught here
+        want = expected_input_shape(profile, geometry, polar)
+        if input_shape != want:
+            raise InvalidModelError(
+                f"{source}: metadata 'radar_odom.input_shape' {list(input_shape)} does not match the "
+                f"profile ({list(want)} for {profile.input_kind} input, width_px {profile.width_px}); "
+                "the metadata was edited — re-export the model"
+            )
+        opset = v.integer("radar_odom.opset")
+        search = v.json("radar_odom.search", dict, required=False)
+        return cls(
+            profile=profile,
+            form=form,
+            sweep_geometry=geometry,
+            inputs=inputs,
+            outputs=outputs,
+            input_shape=input_shape,
+            state_shape=state,
+            polar_input=polar,
+            masking=v.text("radar_odom.masking"),
+            training_data=v.text("radar_odom.training_data"),
+            version=v.text("radar_odom.version"),
+            opset=opset,
+            exporter=v.text("radar_odom.exporter"),
+            source=source,
+            search=search,
+            torch_version=v.text("radar_odom.torch_version"),
+        )
+
+    @property
+    def sweep_input(self) -> str:
+        """Name of the current-sweep input (``cart`` or ``polar``)."""
+        return "polar" if self.profile.input_kind == "polar" else "cart"
+
+
+def io_names(profile: GridProfile, form: str) -> tuple[list[str], list[str]]:
+    """(input names, output names) of a graph of ``form`` for ``profile``, in graph order."""
+    sweep = "polar" if profile.input_kind == "polar" else "cart"
+    if form == "stream":
+        return [sweep, "prev_state"], ["pose", "covariance", "state"]
+    if form == "pair":
+        return [f"prev_{sweep}", sweep], ["pose", "covariance"]
+    raise ValueError(f"form must be one of {FORMS}, got {form!r}")
+
+
+def build_metadata(*, profile: GridProfile, form: str, sweep_geometry: dict, input_shape, state_shape=None,
+                   polar_input: dict | None = None, masking: str, training_data="", version: str,
+                   opset: int, exporter: str, torch_version: str = "", search: dict | None = None,
+                   source: str = "export") -> dict[str, str]:
+    """The ``radar_odom.*`` metadata of a model file, as text, checked by `ModelInfo.from_metadata`
+    (so the writer can never write what the runtime refuses: `InvalidModelError` if it would).
+
+    ``training_data``: text, or a JSON-able dict; ``search``: the fast search's settings.
+    """
+    inputs, outputs = io_names(profile, form)
+    meta = {
+        "radar_odom.format": FORMAT,
+        **profile.to_metadata(),
+        "radar_odom.form": form,
+        "radar_odom.sweep_geometry": json.dumps(sweep_geometry, sort_keys=True),
+        "radar_odom.inputs": json.dumps(inputs),
+        "radar_odom.outputs": json.dumps(outputs),
+        "radar_odom.input_shape": json.dumps([int(d) for d in input_shape]),
+        "radar_odom.masking": masking,
+        "radar_odom.training_data": training_data if isinstance(training_data, str)
+        else json.dumps(training_data or {}, sort_keys=True, default=str),
+        "radar_odom.version": version,
+        "radar_odom.opset": str(int(opset)),
+        "radar_odom.exporter": exporter,
+        "radar_odom.torch_version": torch_version,
+    }
+    if state_shape is not None:
+        meta["radar_odom.state_shape"] = json.dumps([int(d) for d in state_shape])
+    if polar_input is not None:
+        meta["radar_odom.polar_input"] = json.dumps(polar_input)
+    # a digest of the profile text: the runtime refuses a profile edited by hand (a changed
+    # resolution_m keeps every tensor shape, so nothing else would notice)
+    meta["radar_odom.profile_sha256"] = profile_digest(meta["radar_odom.profile"])
+    if search is not None:
+        meta["radar_odom.search"] = json.dumps(search, sort_keys=True)
+    unknown = sorted(set(meta) - set(KEYS))
+    if unknown:  # a key added to the writer must be added to the schema first
+        raise ValueError(f"metadata keys {unknown} are not in model_file.SCHEMA")
+    check_state_shape(ModelInfo.from_metadata(meta, source=source))
+    return meta
+
+
+def check_state_shape(info: ModelInfo) -> None:
+    """The stream state's shape must be the one the profile implies (`expected_state_shape`)."""
+    if info.form != "stream":
+        return
+    want = expected_state_shape(info.profile, info.input_shape)
+    if info.state_shape != want:
+        raise InvalidModelError(
+            f"{info.source}: metadata 'radar_odom.state_shape' {list(info.state_shape)} does not match the "
+            f"profile ({list(want)} for {info.profile.mode} mode, width_px {info.profile.width_px}); "
+            "the metadata was edited — re-export the model"
+        )
+
+
+def check_signature(info: ModelInfo, inputs, outputs, source: str = "model") -> None:
+    """Hold a graph's real inputs and outputs to its metadata; `InvalidModelError` if they differ.
+
+    ``inputs`` / ``outputs``: sequences of ``(name, shape, type)`` in graph order, as onnxruntime
+    reports them (``[(a.name, a.shape, a.type) for a in session.get_inputs()]``; a dimension may
+    be a string for a symbolic size, ``type`` is e.g. ``"tensor(float)"``).
+    """
+    ins = {name: (list(shape), kind) for name, shape, kind in inputs}
+    outs = {name: (list(shape), kind) for name, shape, kind in outputs}
+    names_in = tuple(name for name, _, _ in inputs)
+    if names_in != info.inputs:
+        raise InvalidModelError(f"{source}: graph inputs {names_in} differ from metadata {info.inputs}")
+    if not {"pose", "covariance"} <= set(outs) or (info.form == "stream" and "state" not in outs):
+        raise InvalidModelError(
+            f"{source}: graph outputs {tuple(outs)} lack "
+            f"{'pose/covariance/state' if info.form == 'stream' else 'pose/covariance'}"
+        )
+    expect = {info.inputs[0]: info.input_shape}
+    expect[info.inputs[1]] = info.state_shape if info.form == "stream" else info.input_shape
+    for name, want in expect.items():
+        _check_shape(source, "input", name, *ins[name], want)
+    if info.form == "stream":
+        _check_shape(source, "output", "state", *outs["state"], info.state_shape)
+    _check_shape(source, "output", "pose", *outs["pose"], None, size=3)
+    _check_shape(source, "output", "covariance", *outs["covariance"], None, size=9)
+    check_state_shape(info)  # graph and metadata agree; both must agree with the profile too
+
+
+def _check_shape(source: str, kind: str, name: str, shape: list, type_name: str, want, size: int | None = None):
+    if type_name != "tensor(float)":
+        raise InvalidModelError(f"{source}: graph {kind} {name!r} is {type_name}, expected tensor(float)")
+    if want is not None and (len(shape) != len(want) or any(
+            isinstance(d, int) and d != w for d, w in zip(shape, want))):
+        raise InvalidModelError(
+            f"{source}: graph {kind} {name!r} has shape {shape} but the metadata says {list(want)}; "
+            "the metadata was edited or belongs to another graph — re-export the model"
+        )
+    if size is not None and all(isinstance(d, int) for d in shape) and math.prod(shape) != size:
+        raise InvalidModelError(f"{source}: graph {kind} {name!r} has shape {shape}, expected {size} values")
