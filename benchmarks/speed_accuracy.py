@@ -121,8 +121,7 @@ def polar_to_cartesian_ms(profile, reps: int = 30) -> float:
 
 
 def export_for_speed(model, setting, path: Path):
-    from radar_odom_export.fast_search import export_fast
-    from radar_odom_export.onnx_export import export_model
+    from radar_odom_export.onnx_export import export_fast, export_model
 
     if path.is_file():
         return path

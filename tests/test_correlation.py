@@ -13,7 +13,12 @@ torch = pytest.importorskip("torch")
 
 from radar_odom.profiles import GridProfile  # noqa: E402
 from radar_odom_export.correlation import (  # noqa: E402
-    FFTCorrelation, Rotator, candidate_poses, make_correlation, rotation_grids,
+    FFTCorrelation,
+    Rotator,
+    candidate_poses,
+    make_correlation,
+    rotate_images,
+    rotation_grids,
 )
 from radar_odom_export.dft import MatmulDFTCorrelation  # noqa: E402
 from radar_odom_export.softargmax import hard_argmax, soft_argmax  # noqa: E402
@@ -135,6 +140,18 @@ def test_rotator_keeps_yaw_zero_exact_and_order():
     first = torch.nn.functional.grid_sample(images[:, None], grid.expand(2, -1, -1, -1),
                                             align_corners=True)[:, 0]
     torch.testing.assert_close(out[:, 0], first)
+
+
+def test_per_image_grids_rotate_each_image_by_its_own_yaws():
+    """`rotate_images` with [B, K, W, W, 2] grids (the fast search's per-item yaw bands) gives,
+    for each image, what the shared [K, W, W, 2] grids give: one rotation, two layouts."""
+    images = torch.rand(3, 24, 24)
+    yaws = torch.tensor([[-0.1, 0.0, 0.2], [0.05, 0.1, 0.3], [-0.3, -0.2, 0.0]])
+    per_item = rotate_images(images, torch.stack([rotation_grids(y, 24) for y in yaws]))
+    assert per_item.shape == (3, 3, 24, 24)
+    for b in range(3):
+        shared = rotate_images(images[b:b + 1], rotation_grids(yaws[b], 24))
+        torch.testing.assert_close(per_item[b], shared[0], rtol=0, atol=1e-6)
 
 
 def test_candidate_layout():

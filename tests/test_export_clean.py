@@ -9,10 +9,11 @@ import pytest
 torch = pytest.importorskip("torch")
 onnx = pytest.importorskip("onnx")
 
-from radar_odom_export.fast_search import FastSearchSettings, export_fast  # noqa: E402
-from radar_odom_export.model import MaskedCorrelator  # noqa: E402
-
 from test_fast_search import tiny_profile  # noqa: E402
+
+from radar_odom_export.fast_search import FastSearchSettings  # noqa: E402
+from radar_odom_export.model import MaskedCorrelator  # noqa: E402
+from radar_odom_export.onnx_export import export_fast  # noqa: E402
 
 pytestmark = pytest.mark.torch
 

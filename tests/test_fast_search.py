@@ -10,18 +10,15 @@ torch = pytest.importorskip("torch")
 
 from radar_odom.profiles import GridProfile, get_profile  # noqa: E402
 from radar_odom_export.correlation import FFTCorrelation  # noqa: E402
+from radar_odom_export.dft import FactoredSpectrum, LowResImage, WindowedInverse, dft_split  # noqa: E402
 from radar_odom_export.fast_search import (  # noqa: E402
-    FactoredSpectrum,
     FastSearchSettings,
     FastStreamStep,
-    LowResImage,
     PolarRotator,
-    WindowedInverse,
     default_settings,
-    dft_split,
-    export_fast,
 )
 from radar_odom_export.model import MaskedCorrelator  # noqa: E402
+from radar_odom_export.onnx_export import export_fast  # noqa: E402
 
 pytestmark = pytest.mark.torch
 
@@ -248,7 +245,8 @@ def test_bad_settings_and_models_are_refused():
     with pytest.raises(ValueError, match=">= 1"):
         FastSearchSettings(coarse_factor=0)
     with pytest.raises(ValueError, match="does not divide"):
-        FastStreamStep(MaskedCorrelator(tiny_profile(), masking="raw"), FastSearchSettings(coarse_factor=3, band_half_width=0))
+        FastStreamStep(MaskedCorrelator(tiny_profile(), masking="raw"),
+                       FastSearchSettings(coarse_factor=3, band_half_width=0))
     with pytest.raises(ValueError, match="single-mode"):
         FastStreamStep(MaskedCorrelator(tiny_profile(mode="dual"), masking="raw"))
 

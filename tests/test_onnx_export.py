@@ -1,6 +1,6 @@
 """ONNX export: graph contents, opset, size, metadata, parity with torch, stream == pair, OpenVINO."""
-import math
 import json
+import math
 
 import numpy as np
 import pytest
@@ -10,18 +10,26 @@ onnx = pytest.importorskip("onnx")
 
 import cv2  # noqa: E402
 from onnx import TensorProto, helper  # noqa: E402
+from torch import nn  # noqa: E402
 
+from radar_odom.errors import ExportError  # noqa: E402
 from radar_odom.onnx_model import ModelInfo, OnnxModel  # noqa: E402
 from radar_odom.profiles import GridProfile, get_profile  # noqa: E402
+from radar_odom_export import onnx_export  # noqa: E402
 from radar_odom_export.correlation import Rotator  # noqa: E402
 from radar_odom_export.model import CTS350X_GEOMETRY, MaskedCorrelator  # noqa: E402
 from radar_odom_export.onnx_export import (  # noqa: E402
     MAX_BYTES,
-    ExportError,
     InGraphRotator,
+    StreamGraph,
+    Tolerance,
     check_onnx_file,
+    example_inputs,
     export_model,
+    exportable,
+    model_fields,
     op_counts,
+    write_graph,
 )
 
 TINY = GridProfile("tiny-export", resolution_m=1.6, width_px=64, max_translation_m=4.8,
@@ -247,6 +255,134 @@ def test_export_command_reports_a_bad_checkpoint(tmp_path, capsys):
     bad.write_bytes(b"not a checkpoint")
     assert main(["export", str(bad)]) == 1
     assert "not a radar-odom checkpoint" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------- one export path
+class _LiesUnderExport(nn.Module):
+    """The stream graph, but its pose moves by 0.5 m while being exported: a graph that is not
+    the model (what a branch frozen at trace time looks like), which verification must catch."""
+
+    def __init__(self, graph):
+        super().__init__()
+        self.graph = graph
+
+    def forward(self, sweep, prev_state):
+        pose, cov, state = self.graph(sweep, prev_state)
+        if torch.onnx.is_in_onnx_export():
+            pose = pose + 0.5
+        return pose, cov, state
+
+
+def _write(module, path, model, **kw):
+    inputs = example_inputs(model, "stream", seed=0)
+    fields = model_fields(model, "stream", None, None, tuple(inputs[1].shape))
+    return write_graph(module, inputs, path, fields, input_names=["cart", "prev_state"],
+                       output_names=["pose", "covariance", "state"],
+                       verify_inputs=example_inputs(model, "stream", seed=1), **kw)
+
+
+def test_export_error_is_the_public_one():
+    import radar_odom.errors
+
+    assert onnx_export.ExportError is radar_odom.errors.ExportError
+    assert "ExportError" not in vars(onnx_export) or onnx_export.ExportError is ExportError
+
+
+def test_an_export_that_differs_from_torch_fails_and_leaves_the_destination_untouched(tmp_path):
+    m = exportable(seeded_model(TINY))
+    path = tmp_path / "m.onnx"
+    with pytest.raises(ExportError, match="disagree.*nothing was written"):
+        _write(_LiesUnderExport(StreamGraph(m)), path, m, exporter="torchscript")
+    assert list(tmp_path.iterdir()) == []  # no file, no temporary left behind
+    path.write_bytes(b"the previous model")
+    with pytest.raises(ExportError, match="disagree"):
+        _write(_LiesUnderExport(StreamGraph(m)), path, m, exporter="torchscript")
+    assert path.read_bytes() == b"the previous model" and list(tmp_path.iterdir()) == [path]
+
+
+def test_the_tolerance_fails_an_export_and_a_failed_check_writes_nothing(tmp_path, monkeypatch):
+    model = seeded_model(TINY)
+    path = tmp_path / "m.onnx"
+    path.write_bytes(b"old")
+    with pytest.raises(ExportError, match="disagree"):  # nothing is exact: a zero tolerance fails
+        export_model(model, path, tolerance=Tolerance(pose_m=0.0, yaw_rad=0.0, covariance=0.0))
+    assert path.read_bytes() == b"old" and sorted(tmp_path.iterdir()) == [path]
+
+    def refuse(*a, **k):
+        raise ExportError("refused by a check")
+
+    monkeypatch.setattr(onnx_export, "check_onnx_file", refuse)
+    with pytest.raises(ExportError, match="refused by a check"):
+        export_model(model, path, verify=False)
+    assert path.read_bytes() == b"old" and sorted(tmp_path.iterdir()) == [path]
+
+
+def test_a_verified_export_replaces_the_file_and_reports_both_differences(tmp_path):
+    path = tmp_path / "m.onnx"
+    path.write_bytes(b"old")
+    report = export_model(seeded_model(TINY), path)
+    assert report.max_pose_diff < 1e-4 and report.max_cov_diff < 1e-3
+    assert "covariance" in report.summary() and OnnxModel(path).info.profile == TINY
+    assert sorted(tmp_path.iterdir()) == [path]
+
+
+def test_verification_needs_fresh_inputs(tmp_path):
+    m = exportable(seeded_model(TINY))
+    inputs = example_inputs(m, "stream", seed=0)
+    fields = model_fields(m, "stream", None, None, tuple(inputs[1].shape))
+    with pytest.raises(ValueError, match="fresh"):
+        write_graph(StreamGraph(m), inputs, tmp_path / "m.onnx", fields, input_names=["cart", "prev_state"],
+                    output_names=["pose", "covariance", "state"], verify_inputs=inputs)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_auto_falls_back_only_when_the_exporter_itself_fails(tmp_path, monkeypatch):
+    real = onnx_export._run_exporter
+    model = seeded_model(TINY)
+
+    def broken(kind, *a, **k):
+        if kind == "dynamo":
+            raise ValueError("a bug in the model code")
+        return real(kind, *a, **k)
+
+    monkeypatch.setattr(onnx_export, "_run_exporter", broken)
+    with pytest.raises(ValueError, match="a bug"):  # not hidden behind a TorchScript fallback
+        export_model(model, tmp_path / "a.onnx", verify=False)
+
+    def exporter_fails(kind, *a, **k):
+        if kind == "dynamo":
+            raise torch.onnx.errors.OnnxExporterError("cannot convert op")
+        return real(kind, *a, **k)
+
+    monkeypatch.setattr(onnx_export, "_run_exporter", exporter_fails)
+    with pytest.warns(RuntimeWarning, match="dynamo exporter failed.*falling back"):
+        report = export_model(model, tmp_path / "b.onnx", verify=False)
+    assert report.exporter == "torchscript" and "fell back" in report.summary()
+    assert OnnxModel(tmp_path / "b.onnx").info.exporter == "torchscript"
+    with pytest.raises(ExportError, match="dynamo exporter failed"):
+        export_model(model, tmp_path / "c.onnx", verify=False, exporter="dynamo")
+    assert not (tmp_path / "c.onnx").exists()
+
+
+def test_exporter_warnings_that_concern_the_graph_are_passed_on(tmp_path, monkeypatch):
+    import warnings
+
+    real = torch.onnx.export
+
+    def chatty(*a, **k):
+        warnings.warn("the legacy exporter is deprecated", DeprecationWarning, stacklevel=2)
+        warnings.warn("Converting a tensor to a Python boolean might cause the trace to be incorrect",
+                      torch.jit.TracerWarning, stacklevel=2)
+        return real(*a, **k)
+
+    monkeypatch.setattr(torch.onnx, "export", chatty)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        report = export_model(seeded_model(TINY), tmp_path / "m.onnx", verify=False)
+    shown = [str(w.message) for w in caught]
+    assert any("trace to be incorrect" in m for m in shown)
+    assert not any("deprecated" in m for m in shown)
+    assert any("TracerWarning" in n for n in report.notes)
 
 
 # --------------------------------------------------------------------------- real size

@@ -86,11 +86,19 @@ def rotation_grids(yaws_rad: torch.Tensor, width_px: int) -> torch.Tensor:
 
 
 def rotate_images(images: torch.Tensor, grids: torch.Tensor) -> torch.Tensor:
-    """float[B, K, W, W]: each of B images [B, W, W] rotated by each of K grids [K, W, W, 2].
+    """float[B, K, W, W]: each of B images [B, W, W] rotated by K grids (`rotation_grids`).
 
-    Bilinear, zeros outside the image. The batch rides in the channel axis so that one
-    ``grid_sample`` call (K grids, B channels) does all B·K rotations.
+    ``grids``: [K, W, W, 2], the same K rotations for every image, or [B, K, W, W, 2], K of its
+    own for each image (the fast search's per-item yaw bands). Bilinear, zeros outside the image.
+    Shared grids ride the batch in the channel axis, so one ``grid_sample`` call (K grids, B
+    channels) does all B·K rotations.
     """
+    if grids.dim() == 5:
+        b, k, w = grids.shape[0], grids.shape[1], images.shape[-1]
+        stack = images.unsqueeze(1).expand(b, k, w, w).reshape(b * k, 1, w, w)
+        rotated = F.grid_sample(stack, grids.reshape(b * k, *grids.shape[2:]), mode="bilinear",
+                                padding_mode="zeros", align_corners=True)
+        return rotated.reshape(b, k, w, w)
     k = grids.shape[0]
     stack = images.unsqueeze(0).expand(k, *images.shape)  # [K, B, W, W], no copy
     rotated = F.grid_sample(stack, grids, mode="bilinear", padding_mode="zeros",

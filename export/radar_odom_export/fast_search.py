@@ -43,29 +43,26 @@ half-spectrum layout of `MaskedCorrelator` ([B, 2, W, W//2 + 1]), so states are
 interchangeable with the exhaustive step's.
 
 The graph has static shapes and uses MatMul, GatherElements, Gather, ArgMax, elementwise and
-shape ops: no ``DFT``/``STFT`` node, no complex tensor. `export_fast` writes it with the same
-contract as `onnx_export.export_model` (stream form) plus ``radar_odom.search`` metadata.
+shape ops: no ``DFT``/``STFT`` node, no complex tensor. This module builds the step;
+`onnx_export.export_fast` writes it (the file contract of the exhaustive export, stream form, plus
+``radar_odom.search`` metadata). The DFT matrices live in `dft`, the rotation grids in
+`correlation`.
 """
 from __future__ import annotations
 
-import copy
-import json
 import math
-import time
-from dataclasses import asdict, dataclass
-from pathlib import Path
+from dataclasses import dataclass
 
-import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
 
 from radar_odom.profiles import GridProfile
 
-from .correlation import rotation_grids
+from .correlation import rotate_images, rotation_grids
+from .dft import FactoredSpectrum, LowResImage, WindowedInverse
 from .softargmax import candidate_weights, parabolic_peak, peak_window, pose_window, windowed_weights
 
-TAU = 2.0 * math.pi
 ROTATIONS = ("polar", "bilinear")
 NO_WEIGHT = -1e30  # a volume entry that softmax(β·C) weighs 0 for any β > 0
 
@@ -133,189 +130,6 @@ def default_settings(profile: GridProfile) -> FastSearchSettings:
     return FastSearchSettings(coarse_factor=factor, coarse_stride=1, band_half_width=2)
 
 
-# ============================================================================ factored DFT
-def dft_split(width_px: int) -> tuple[int, int]:
-    """(P, Q) with ``P·Q = W``, P a power of two ≤ √W (P = 1: no factorisation possible)."""
-    p = 1
-    while (2 * p) ** 2 <= width_px and width_px % (2 * p) == 0:
-        p *= 2
-    return p, width_px // p
-
-
-def _f32(a: np.ndarray) -> torch.Tensor:
-    return torch.from_numpy(np.ascontiguousarray(a, dtype=np.float64).astype(np.float32))
-
-
-def _angles(a: np.ndarray, b: np.ndarray, period: int) -> np.ndarray:
-    """2π·(a ⊗ b mod period)/period in float64; reducing the integer product first keeps
-    the angles exact for any size."""
-    return TAU * (np.multiply.outer(a, b) % period) / period
-
-
-def natural_rows(width_px: int) -> np.ndarray:
-    """int[W]: the row frequency kr held at each row position of the factored spectrum."""
-    p, q = dft_split(width_px)
-    return (np.arange(p)[:, None] + p * np.arange(q)[None, :]).ravel()
-
-
-def natural_cols(width_px: int) -> np.ndarray:
-    """int[P, H]: the column frequency kc held at each (kc1, kc2) of the factored spectrum.
-
-    Values above W/2 are redundant (Hermitian mirrors); the inverse gives them zero weight.
-    """
-    p, q = dft_split(width_px)
-    return np.arange(p)[:, None] + p * np.arange(q // 2 + 1)[None, :]
-
-
-def hermitian_weights(kc: np.ndarray, width_px: int) -> np.ndarray:
-    """Weight of column frequency kc in a real inverse from the half spectrum: 1 at 0 and at
-    W/2 (its own mirror), 2 in between (the mirror's share), 0 beyond W/2 (counted already)."""
-    w = np.where(kc < (width_px + 1) / 2, 2.0, 0.0)
-    w[kc == 0] = 1.0
-    if width_px % 2 == 0:
-        w[kc == width_px // 2] = 1.0
-    return w
-
-
-class FactoredSpectrum(nn.Module):
-    """Real images float[..., W, W] → half spectrum in factored order float[..., P, W, 2, H].
-
-    Rows r = Q·r1 + r2 and columns c = Q·c1 + c2; the output holds ``X(kr, kc)`` at
-    ``[kc1, kr1·Q + kr2, re/im, kc2]`` with ``kr = kr1 + P·kr2``, ``kc = kc1 + P·kc2``
-    (`natural_rows`, `natural_cols`), same sign and scale as ``torch.fft.rfft2``.
-    Stages (each one matmul): DFT_P over r1 (real in); DFT_Q over r2 with the twiddle
-    ``e^{−2πi·r2·kr1/W}`` (batched per kr1); DFT_P over c1; one transpose; DFT_Q over c2 with
-    its twiddle, keeping ``kc2 ≤ Q/2`` (H = Q//2 + 1), which covers every kc ≤ W/2.
-    """
-
-    def __init__(self, width_px: int):
-        super().__init__()
-        w = self.width_px = int(width_px)
-        p, q = self.p, self.q = dft_split(w)
-        h = self.h = q // 2 + 1
-        ip, iq, ih = np.arange(p), np.arange(q), np.arange(h)
-        # stage 1, real input: rows (kr1, re/im) × r1
-        th = _angles(ip, ip, p)
-        s1 = np.stack([np.cos(th), -np.sin(th)], axis=1).reshape(2 * p, p)
-        # stage 2, per kr1: rows (kr2, re/im) × (re/im, r2); angle kr2·r2/Q + kr1·r2/W
-        s2 = np.zeros((p, q, 2, 2, q))
-        for k1 in range(p):
-            th = TAU * ((np.multiply.outer(iq, iq) * p + k1 * iq[None, :]) % w) / w
-            _complex_block(s2[k1], np.cos(th), np.sin(th))
-        # stage 3, complex, one matrix: rows (kc1, re/im) × (re/im, c1)
-        s3 = np.zeros((p, 2, 2, p))
-        th = _angles(ip, ip, p)
-        _complex_block(s3, np.cos(th), np.sin(th))
-        # stage 4, per kc1, right-multiplied: (re/im, c2) × (re/im, kc2)
-        s4 = np.zeros((p, 2, q, 2, h))
-        for k1 in range(p):
-            th = TAU * ((np.multiply.outer(iq, ih) * p + k1 * iq[:, None]) % w) / w
-            c, s = np.cos(th), np.sin(th)  # [c2, kc2]
-            s4[k1, 0, :, 0], s4[k1, 1, :, 0] = c, s  # re' = c·re + s·im
-            s4[k1, 0, :, 1], s4[k1, 1, :, 1] = -s, c  # im' = c·im − s·re
-        for name, m in (("s1", s1), ("s2", s2.reshape(p, 2 * q, 2 * q)),
-                        ("s3", s3.reshape(2 * p, 2 * p)), ("s4", s4.reshape(p, 2 * q, 2 * h))):
-            self.register_buffer(name, _f32(m), persistent=False)
-
-    def forward(self, images: torch.Tensor) -> torch.Tensor:
-        w, p, q, h = self.width_px, self.p, self.q, self.h
-        lead = images.shape[:-2]
-        t = self.s1 @ images.reshape(*lead, p, q * w)  # [.., (kr1 ri), (r2 c)]
-        t = self.s2 @ t.reshape(*lead, p, 2 * q, w)  # [.., kr1, (kr2 ri), c]
-        t = self.s3 @ t.reshape(*lead, w, 2 * p, q)  # [.., kr, (kc1 ri), c2]
-        t = t.reshape(*lead, w, p, 2 * q).transpose(-3, -2)  # [.., kc1, kr, (ri c2)]
-        return (t @ self.s4).reshape(*lead, p, w, 2, h)
-
-    # Converting orders is one GatherElements with a constant index (folded at session start):
-    # onnxruntime's scalar Gather and its 5-D Transpose are several times slower.
-    def _factored_index(self) -> torch.Tensor:
-        """int64[P·W·2·H]: flat natural position [2, W, G] read by each factored entry
-        (entries above W/2, the redundant mirrors, read column W/2: the inverse ignores them)."""
-        w, p, q, h = self.width_px, self.p, self.q, self.h
-        g = w // 2 + 1
-        kc1 = torch.arange(p).reshape(p, 1, 1, 1, 1)
-        kr1 = torch.arange(p).reshape(1, p, 1, 1, 1)
-        kr2 = torch.arange(q).reshape(1, 1, q, 1, 1)
-        ri = torch.arange(2).reshape(1, 1, 1, 2, 1)
-        kc2 = torch.arange(h).reshape(1, 1, 1, 1, h)
-        kc = (kc1 + p * kc2).clamp(max=g - 1)
-        return ((ri * w + kr1 + p * kr2) * g + kc).reshape(-1)
-
-    def _natural_index(self) -> torch.Tensor:
-        """int64[2·W·G]: flat factored position [P, W, 2, H] holding each natural entry."""
-        w, p, q, h = self.width_px, self.p, self.q, self.h
-        g = w // 2 + 1
-        ri = torch.arange(2).reshape(2, 1, 1)
-        kr = torch.arange(w).reshape(1, w, 1)
-        kc = torch.arange(g).reshape(1, 1, g)
-        row = (kr % p) * q + kr // p
-        return ((((kc % p) * w + row) * 2 + ri) * h + kc // p).reshape(-1)
-
-    def to_natural(self, spec: torch.Tensor) -> torch.Tensor:
-        """[..., P, W, 2, H] → the natural half spectrum [..., 2, W, W//2 + 1] (the state)."""
-        lead = spec.shape[:-4]
-        flat = spec.reshape(-1, self.p * self.width_px * 2 * self.h)
-        index = self._natural_index().to(spec.device).unsqueeze(0).expand(flat.shape[0], -1)
-        return torch.gather(flat, 1, index).reshape(*lead, 2, self.width_px, self.width_px // 2 + 1)
-
-    def from_natural(self, state: torch.Tensor) -> torch.Tensor:
-        """The natural half spectrum [..., 2, W, W//2 + 1] → factored order [..., P, W, 2, H]."""
-        lead = state.shape[:-3]
-        flat = state.reshape(-1, 2 * self.width_px * (self.width_px // 2 + 1))
-        index = self._factored_index().to(state.device).unsqueeze(0).expand(flat.shape[0], -1)
-        return torch.gather(flat, 1, index).reshape(*lead, self.p, self.width_px, 2, self.h)
-
-
-def _complex_block(out: np.ndarray, c: np.ndarray, s: np.ndarray) -> None:
-    """Fill ``out[k, ri', ri, n]`` with the real 2×2 blocks of multiplying by ``c − i·s``."""
-    out[:, 0, 0], out[:, 0, 1] = c, s  # re' = c·re + s·im
-    out[:, 1, 0], out[:, 1, 1] = -s, c  # im' = −s·re + c·im
-
-
-class WindowedInverse(nn.Module):
-    """Correlation volume float[B, K, N, N] from factored spectra (see `FactoredSpectrum`).
-
-    ``C[k, i, j] = Re IDFT2(conj(A)·B_k)(u = i, v = −j)`` for i, j = −n..n: the layout and sign
-    conventions of `correlation.py` (volume axis 2 ↔ x rows, axis 3 ↔ y columns). Only the
-    N = 2n + 1 candidate shifts are computed: one matmul over the row frequencies (W → 2N
-    cos/sin rows), a small transpose, one matmul over the column frequencies with Hermitian
-    weights (the real part of the full inverse), scaled by 1/W².
-    """
-
-    def __init__(self, width_px: int, translation_cells: int):
-        super().__init__()
-        w, n = int(width_px), int(translation_cells)
-        self.width_px, self.n = w, n
-        self.p, _ = dft_split(w)
-        u = np.arange(-n, n + 1)
-        kr = natural_rows(w)
-        th = _angles(u, kr, w)  # [N, W positions]
-        self.register_buffer("rows", _f32(np.concatenate([np.cos(th), np.sin(th)])),
-                             persistent=False)
-        # Y(u, j) = Σ_kc w·[cos θ·(C·Zre − S·Zim) − sin θ·(S·Zre + C·Zim)], θ = 2π·kc·(−j)/W:
-        # one matrix over (cos/sin row half, re/im, kc1, kc2) gives the real part directly
-        kc = natural_cols(w)  # [P, H]
-        wt = hermitian_weights(kc, w) / float(w) ** 2
-        th = _angles(kc, -u, w)  # [P, H, N]
-        cw, sw = wt[..., None] * np.cos(th), wt[..., None] * np.sin(th)
-        m = np.stack([np.stack([cw, -sw]), np.stack([-sw, -cw])])  # [cs, ri, P, H, N]
-        self.register_buffer("cols", _f32(m.transpose(2, 0, 1, 3, 4).reshape(-1, len(u))),
-                             persistent=False)
-
-    def forward(self, prev: torch.Tensor, cur: torch.Tensor) -> torch.Tensor:
-        """prev [B, P, W, 2, H], cur [B, K, P, W, 2, H] → volume [B, K, N, N]."""
-        a = prev.unsqueeze(1)
-        a_re, a_im = a[..., 0, :], a[..., 1, :]
-        b_re, b_im = cur[..., 0, :], cur[..., 1, :]
-        z = torch.stack([a_re * b_re + a_im * b_im, a_re * b_im - a_im * b_re], dim=-2)  # conj(A)·B
-        lead = z.shape[:-3]  # [B, K, P]
-        t = self.rows @ z.reshape(*lead, self.width_px, -1)  # [B, K, P, 2N, 2H]
-        n_out = 2 * self.n + 1
-        t = t.reshape(*lead, 2 * n_out, -1).reshape(*lead[:-1], self.p, 2, n_out, -1)
-        t = t.permute(0, 1, 4, 2, 3, 5).reshape(*lead[:-1], n_out, -1)  # [B, K, N, (P cs ri H)]
-        return t @ self.cols
-
-
 # ============================================================================ coarse yaw
 def crop_spectrum(state: torch.Tensor, width_px: int, low_px: int) -> torch.Tensor:
     """Natural half spectrum [..., 2, W, W//2+1] → that of the ``low_px`` image [..., 2, w, w//2+1].
@@ -331,32 +145,6 @@ def crop_spectrum(state: torch.Tensor, width_px: int, low_px: int) -> torch.Tens
     keep[half, :] = 0.0
     keep[:, half] = 0.0
     return t * keep
-
-
-class LowResImage(nn.Module):
-    """Natural half spectrum [..., 2, w, w//2+1] → the real image [..., w, w] (matmul iDFT)."""
-
-    def __init__(self, width_px: int):
-        super().__init__()
-        w = int(width_px)
-        g = w // 2 + 1
-        th = _angles(np.arange(w), np.arange(w), w)  # [r, kr]
-        c, s = np.cos(th), np.sin(th)
-        # rows: complex e^{+iθ}: re' = c·re − s·im, im' = s·re + c·im; one [2w, 2w] matrix
-        self.register_buffer("rows", _f32(np.block([[c, -s], [s, c]])), persistent=False)
-        kc = np.arange(g)
-        wt = hermitian_weights(kc, w)[:, None] / float(w) ** 2
-        th = _angles(kc, np.arange(w), w)  # [kc, c]
-        self.register_buffer("cols", _f32(np.concatenate([wt * np.cos(th), -wt * np.sin(th)])),
-                             persistent=False)
-        self.width_px = w
-
-    def forward(self, spec: torch.Tensor) -> torch.Tensor:
-        lead = spec.shape[:-3]
-        w = self.width_px
-        t = self.rows @ spec.reshape(*lead, 2 * w, -1)  # [.., (ri r), kc]
-        t = t.reshape(*lead, 2, w, -1).movedim(-3, -2).reshape(*lead, w, -1)  # [.., r, (ri kc)]
-        return t @ self.cols
 
 
 class CoarseYawSelector(nn.Module):
@@ -390,9 +178,8 @@ class CoarseYawSelector(nn.Module):
     def forward(self, prev_state: torch.Tensor, cur_state: torch.Tensor) -> torch.Tensor:
         prev = self.spectrum.from_natural(crop_spectrum(prev_state, self.width_px, self.low_px))
         cur = self.image(crop_spectrum(cur_state, self.width_px, self.low_px))  # [B, w, w]
-        b = cur.shape[0]
         if self.rotator is None:
-            rotated = _rotate_bilinear(cur, self.yaws.unsqueeze(0).expand(b, -1))
+            rotated = rotate_images(cur, rotation_grids(self.yaws, self.low_px))
         else:
             rotated = self.rotator.rotate_constant(cur, [i - self.centre for i in self.index_list])
         volume = self.inverse(prev, self.spectrum(rotated))  # [B, Kc, n, n]
@@ -401,17 +188,6 @@ class CoarseYawSelector(nn.Module):
         norm = torch.sqrt((rotated * rotated).flatten(2).sum(dim=-1) + 1e-12)
         best = (volume.flatten(2).amax(dim=-1) / norm).argmax(dim=-1)
         return self.indices[best]
-
-
-def _rotate_bilinear(images: torch.Tensor, yaws: torch.Tensor) -> torch.Tensor:
-    """images [B, W, W] rotated by yaws [B, K] → [B, K, W, W] with ``grid_sample`` (bilinear,
-    zeros outside): exactly the exhaustive step's rotation (`correlation.rotation_grids`)."""
-    b, k = yaws.shape
-    w = images.shape[-1]
-    grids = rotation_grids(yaws.reshape(-1), w)
-    stack = images.unsqueeze(1).expand(b, k, w, w).reshape(b * k, 1, w, w)
-    out = F.grid_sample(stack, grids, mode="bilinear", padding_mode="zeros", align_corners=True)
-    return out.reshape(b, k, w, w)
 
 
 def _bilinear_table(rows: torch.Tensor, cols: torch.Tensor, height: int, width: int):
@@ -457,7 +233,7 @@ class PolarRotator(nn.Module):
     is resampled back to Cartesian with one table shared by all rotations. The tables depend
     only on the geometry: they are computed in the graph from a few constants and folded by
     onnxruntime at session start, so the file stays small. Both resamplings are bilinear with
-    zeros outside; the result differs from direct bilinear rotation (`_rotate_bilinear`) by the
+    zeros outside; the result differs from direct bilinear rotation (`correlation.rotate_images`) by the
     second interpolation, a slight blur (the accuracy is measured in benchmarks/).
     """
 
@@ -599,7 +375,9 @@ class FastStreamStep(nn.Module):
     def rotate(self, features: torch.Tensor, indices: torch.Tensor) -> torch.Tensor:
         """features [B, W, W] rotated by the yaw candidates ``indices`` int64[B, Kb] → [B, Kb, W, W]."""
         if self.rotator is None:
-            return _rotate_bilinear(features, self.yaw_table[indices])
+            b, k = indices.shape  # one set of yaws per batch item
+            grids = rotation_grids(self.yaw_table[indices].reshape(-1), self.width_px)
+            return rotate_images(features, grids.reshape(b, k, *grids.shape[1:]))
         shifts = indices - self.num_rotations // 2
         rotated = self.rotator(features, shifts)
         # yaw 0 is the image itself, exactly as in the exhaustive step (`Rotator`): the polar
@@ -643,67 +421,3 @@ def band_moments(weights: torch.Tensor, offsets_m: torch.Tensor, yaws: torch.Ten
     cov = torch.stack([torch.stack([cxx, cxy, cxa], -1), torch.stack([cxy, cyy, cya], -1),
                        torch.stack([cxa, cya, caa], -1)], dim=-2)
     return mean, cov
-
-
-# ============================================================================ export
-class _StreamGraph(nn.Module):
-    def __init__(self, step: FastStreamStep):
-        super().__init__()
-        self.step = step
-
-    def forward(self, sweep, prev_state):
-        return self.step(sweep, prev_state)
-
-
-def export_fast(model, path, settings: FastSearchSettings | None = None, *, opset: int | None = None,
-                masking: str | None = None, training_data=None, verify: bool = True):
-    """Export ``model`` in the stream form with the fast search; the same file contract as
-    `onnx_export.export_model` (inputs ``cart``/``polar`` + ``prev_state``; outputs ``pose``,
-    ``covariance``, ``state``; metadata, checks), plus ``radar_odom.search`` metadata.
-
-    Returns the `onnx_export.ExportReport`.
-    """
-    import onnx
-
-    from . import onnx_export as ox
-
-    opset = opset or ox.DEFAULT_OPSET
-    t0 = time.perf_counter()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    m = copy.deepcopy(model).cpu().eval()
-    step = FastStreamStep(m, settings).eval()
-    inputs = ox.example_inputs(m, "stream")
-    input_names, output_names = ox.io_names(m, "stream")
-    with torch.no_grad():
-        ox._torch_export(_StreamGraph(step), inputs, path, input_names, output_names, opset, dynamo=True)
-    proto = onnx.load(str(path))
-    meta = ox.build_metadata(m, "stream", opset, "dynamo", masking or m.masking, training_data,
-                             tuple(inputs[1].shape))
-    meta["radar_odom.search"] = json.dumps({"kind": "coarse_to_fine", **asdict(step.settings),
-                                            "band_rotations": step.band}, sort_keys=True)
-    ox.strip_node_metadata(proto)
-    del proto.metadata_props[:]
-    for k, v in meta.items():
-        proto.metadata_props.add(key=k, value=v)
-    proto.doc_string = (f"radar-odom: Masking by Moving radar odometry, profile {m.profile.name}, "
-                        f"stream form, fast search {step.settings.label()}")
-    onnx.save(proto, str(path))
-    checked = ox.check_onnx_file(path, opset)
-    report = ox.ExportReport(path, "stream", "dynamo", checked["opset"], checked["bytes"], checked["ops"],
-                             meta, time.perf_counter() - t0)
-    if verify:
-        report.max_pose_diff = _verify(path, step, inputs)
-        report.seconds = time.perf_counter() - t0
-    return report
-
-
-def _verify(path, step, inputs) -> float:
-    """max |pose_ORT − pose_torch| of the exported fast step on the export's example inputs."""
-    from radar_odom.onnx_model import OnnxModel
-
-    ort_model = OnnxModel(path)
-    with torch.no_grad():
-        ref = step(*inputs)
-    out = ort_model.run({n: x.numpy() for n, x in zip(ort_model.info.inputs, inputs)})
-    return float(np.max(np.abs(out["pose"] - ref[0].numpy())))

@@ -12,32 +12,51 @@ What ends up in the file (``radar-odom export model.pt``):
   dual mode: the previous sweep), outputs ``pose`` [1, 3], ``covariance`` [1, 3, 3] and
   ``state``; **pair form**: inputs ``prev_cart``, ``cart`` (``prev_polar``, ``polar``),
   outputs ``pose``, ``covariance``;
-* ``metadata_props`` (see `radar_odom.onnx_model`): profile, form, sweep geometry, names and
-  shapes, masking, training data, versions.
+* ``metadata_props``, written by `radar_odom.model_file.build_metadata` (the schema the runtime
+  reads with): profile, form, sweep geometry, names and shapes, masking, training data, versions.
 
 Rotation grids: K sampling grids of W×W×2 floats would be 126 MB at 0.2 m/px, so the exported
 rotator computes them inside the graph from the K yaw values (`InGraphRotator`, the same
 formula as training's precomputed grids); onnxruntime folds them once at session start.
 
-Exporter: ``torch.onnx.export(dynamo=True)`` (torch.export + onnxscript) is used first — it keeps
-the in-graph grid computation as a handful of nodes. If it fails, the TorchScript exporter
-(``dynamo=False``) is the fallback; it folds the grids into constants, so the size check may then
-refuse large profiles. The chosen exporter is recorded in the metadata.
+Every search mode writes through one function, `write_graph` (`export_model`: the exhaustive
+search, stream or pair form; `export_fast`: the coarse-to-fine search of `fast_search`, stream
+form). The graph-building modules (`model`, `correlation`, `dft`, `fast_search`) never import
+this one: they build an ``nn.Module``, this module writes it.
 
-After writing, the file is checked (`check_onnx_file`): opset equals the requested one, one
-file (no external data), at most `MAX_BYTES`, ``onnx.checker`` full check, no DFT/STFT node in
-the graph, its subgraphs or functions.
+Exporter: ``torch.onnx.export(dynamo=True)`` (torch.export + onnxscript) is used first — it keeps
+the in-graph grid computation as a handful of nodes. ``exporter="auto"`` falls back to the
+TorchScript exporter (``dynamo=False``) only when the dynamo exporter itself fails
+(``torch.onnx.errors.OnnxExporterError``), and says so (a warning and a note in the report);
+any other exception is a bug and propagates. TorchScript folds the grids into constants, so the
+size check may then refuse large profiles. The exporter used is recorded in the metadata. The
+exporters' deprecation notices are dropped; every other warning they raise (a tracer warning
+that the graph may not generalise, ...) is passed on and listed in the report.
+
+The file is written atomically: the graph goes to a temporary file in the destination folder,
+every check runs on that file, and only then is it renamed over the destination. On any failure
+the temporary file is removed and the destination is left as it was. The checks:
+
+* `check_onnx_file`: opset equals the requested one (`DEFAULT_OPSET` unless asked), one file (no
+  external data), at most `MAX_BYTES`, ``onnx.checker`` full check, no DFT/STFT node in the
+  graph, its subgraphs or functions;
+* the metadata (`radar_odom.model_file.build_metadata`, the schema the runtime reads) and the
+  graph's real inputs and outputs, as the runtime loads them (`OnnxModel`);
+* ``verify``: onnxruntime's pose and covariance against torch's on fresh random inputs (another
+  seed than the trace's), within `Tolerance`; beyond it the export fails (`ExportError`).
 """
 from __future__ import annotations
 
 import copy
 import json
+import logging
 import os
+import re
 import tempfile
 import time
 import warnings
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -46,17 +65,19 @@ from torch import nn
 
 import radar_odom
 from radar_odom.errors import ExportError, RadarOdomError
-from radar_odom.onnx_model import FORMAT, ModelInfo, profile_digest
+from radar_odom.model_file import DEFAULT_OPSET, build_metadata, io_names
 
 from .correlation import Rotator, make_correlation, rotate_images, rotation_grids
+from .fast_search import FastSearchSettings, FastStreamStep
 
-DEFAULT_OPSET = 18
+__all__ = ["DEFAULT_OPSET", "MAX_BYTES", "ExportError", "ExportReport", "Tolerance", "check_onnx_file",
+           "export_checkpoint", "export_fast", "export_model", "write_graph"]
+
 MAX_BYTES = 20 * 1024 * 1024
 FORBIDDEN_OPS = frozenset({"DFT", "STFT"})
-
-
-class ExportError(RadarOdomError, RuntimeError):
-    """The exported file breaks a promise (opset, size, forbidden ops, checker)."""
+EXPORTERS = ("auto", "dynamo", "torchscript")
+SEARCHES = ("exhaustive", "fast")
+TRACE_SEED, VERIFY_SEED = 0, 1  # the example inputs traced with, and the fresh ones verified on
 
 
 # ----------------------------------------------------------------------------- graph modules
@@ -122,14 +143,7 @@ def sweep_shape(model) -> tuple[int, ...]:
     return (1, model.profile.width_px, model.profile.width_px)
 
 
-def io_names(model, form: str) -> tuple[list[str], list[str]]:
-    sweep = "polar" if model.profile.input_kind == "polar" else "cart"
-    if form == "stream":
-        return [sweep, "prev_state"], ["pose", "covariance", "state"]
-    return [f"prev_{sweep}", sweep], ["pose", "covariance"]
-
-
-def example_inputs(model, form: str, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+def example_inputs(model, form: str, seed: int = TRACE_SEED) -> tuple[torch.Tensor, torch.Tensor]:
     """Plausible inputs (random sparse power in [0, 1]) for tracing and checks."""
     g = torch.Generator().manual_seed(seed)
     shape = sweep_shape(model)
@@ -188,7 +202,8 @@ def check_onnx_file(path, opset: int = DEFAULT_OPSET, max_bytes: int = MAX_BYTES
     proto = onnx.load(str(path), load_external_data=False)
     external = [t.name for t in proto.graph.initializer if t.data_location == onnx.TensorProto.EXTERNAL]
     if external:
-        raise ExportError(f"{path}: initializers {external[:3]} live in external files; the file must be self-contained")
+        raise ExportError(f"{path}: initializers {external[:3]} live in external files; "
+                          "the file must be self-contained")
     got = onnx_opset(proto)
     if got != opset:
         raise ExportError(f"{path}: written at opset {got}, but opset {opset} was requested "
@@ -204,10 +219,30 @@ def check_onnx_file(path, opset: int = DEFAULT_OPSET, max_bytes: int = MAX_BYTES
     return {"bytes": size, "opset": got, "ops": ops}
 
 
-# ----------------------------------------------------------------------------- export
+# ----------------------------------------------------------------------------- writing
+@dataclass(frozen=True)
+class Tolerance:
+    """How far onnxruntime's outputs may be from torch's before an export fails.
+
+    ``pose_m``: |Δx|, |Δy| in metres; ``yaw_rad``: |Δyaw|; ``covariance``: ‖ΔΣ‖ / ‖Σ‖ (Frobenius).
+    Float32 rounding differs between the two (matmul order, fused kernels; the exhaustive
+    export is compared with the FFT model it was made from). Measured on the shipped
+    checkpoints (cart-0.8, cart-0.4; fast and exhaustive search): max |Δpose| ≤ 2.2e-6 and
+    ‖ΔΣ‖/‖Σ‖ ≤ 1.4e-4 (cart-0.4 exhaustive), i.e. at least 45× inside these bounds, while a
+    wrongly traced graph (a branch frozen at trace time, a dropped op) is off by cells.
+    """
+
+    pose_m: float = 1e-3
+    yaw_rad: float = 1e-4
+    covariance: float = 1e-2
+
+
+DEFAULT_TOLERANCE = Tolerance()
+
+
 @dataclass
 class ExportReport:
-    """What `export_model` wrote and measured."""
+    """What `write_graph` wrote and measured."""
 
     path: Path
     form: str
@@ -217,7 +252,8 @@ class ExportReport:
     ops: Counter
     metadata: dict
     seconds: float
-    max_pose_diff: float | None = None  # |ORT − torch| on random inputs, when verified
+    max_pose_diff: float | None = None  # max |ORT − torch| over the pose, when verified
+    max_cov_diff: float | None = None  # ‖ΔΣ‖ / ‖Σ‖ of the covariance, when verified
     notes: list = field(default_factory=list)
 
     def summary(self) -> str:
@@ -231,7 +267,8 @@ class ExportReport:
             f"nodes: {sum(self.ops.values())} ({', '.join(f'{k} {v}' for k, v in self.ops.most_common(6))}, ...)",
         ]
         if self.max_pose_diff is not None:
-            lines.append(f"check: onnxruntime vs torch max |Δpose| = {self.max_pose_diff:.2e}")
+            lines.append(f"check: onnxruntime vs torch max |Δpose| = {self.max_pose_diff:.2e}, "
+                         f"covariance ‖ΔΣ‖/‖Σ‖ = {self.max_cov_diff:.2e} (fresh random inputs)")
         lines += self.notes
         return "\n".join(lines)
 
@@ -252,126 +289,235 @@ def strip_node_metadata(proto) -> int:
     return removed
 
 
-def build_metadata(model, form: str, opset: int, exporter: str, masking: str, training_data, state_shape) -> dict:
-    """The ``radar_odom.*`` metadata (see `radar_odom.onnx_model`) for ``model``."""
-    inputs, outputs = io_names(model, form)
-    meta = {
-        "radar_odom.format": FORMAT,
-        **model.profile.to_metadata(),
-        "radar_odom.form": form,
-        "radar_odom.sweep_geometry": json.dumps(model.sweep_geometry, sort_keys=True),
-        "radar_odom.inputs": json.dumps(inputs),
-        "radar_odom.outputs": json.dumps(outputs),
-        "radar_odom.input_shape": json.dumps(list(sweep_shape(model))),
-        "radar_odom.masking": masking,
-        "radar_odom.training_data": training_data if isinstance(training_data, str)
-        else json.dumps(training_data or {}, sort_keys=True, default=str),
-        "radar_odom.version": radar_odom.__version__,
-        "radar_odom.opset": str(opset),
-        "radar_odom.exporter": exporter,
-        "radar_odom.torch_version": torch.__version__,
-    }
-    if state_shape is not None:
-        meta["radar_odom.state_shape"] = json.dumps(list(state_shape))
-    if model.to_cartesian is not None:
-        meta["radar_odom.polar_input"] = json.dumps(
-            {"num_bins": model.to_cartesian.num_bins, "bin_factor": model.to_cartesian.bin_factor}
-        )
-    # a digest of the profile text: the runtime refuses a profile edited by hand (a changed
-    # resolution_m keeps every tensor shape, so nothing else would notice)
-    meta["radar_odom.profile_sha256"] = profile_digest(meta["radar_odom.profile"])
-    # the runtime's schema (required keys, types, ranges, profile vs input shape) checks what is written
+def model_fields(model, form: str, masking: str | None, training_data, state_shape, search=None) -> dict:
+    """The facts about ``model`` that `radar_odom.model_file.build_metadata` writes (all but the
+    opset and the exporter, which `write_graph` fills in)."""
+    return dict(
+        profile=model.profile, form=form, sweep_geometry=model.sweep_geometry,
+        input_shape=sweep_shape(model), state_shape=state_shape,
+        polar_input=None if model.to_cartesian is None else
+        {"num_bins": model.to_cartesian.num_bins, "bin_factor": model.to_cartesian.bin_factor},
+        masking=masking or model.masking, training_data=training_data,
+        version=radar_odom.__version__, torch_version=torch.__version__, search=search,
+    )
+
+
+def _metadata(fields: dict, opset: int, exporter: str) -> dict:
     try:
-        ModelInfo.from_metadata(meta, source="export")
+        return build_metadata(**fields, opset=opset, exporter=exporter)
     except RadarOdomError as exc:
         raise ExportError(f"the metadata for this model would be refused at run time: {exc}") from None
-    return meta
 
 
-def _torch_export(module, inputs, path, input_names, output_names, opset, dynamo: bool):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # the exporters' deprecation chatter is not for users
-        kwargs = dict(input_names=input_names, output_names=output_names, opset_version=opset,
-                      dynamo=dynamo, external_data=False)
-        if dynamo:
-            kwargs["verbose"] = False
-        else:
-            kwargs["do_constant_folding"] = True
-        torch.onnx.export(module, inputs, str(path), **kwargs)
+_QUIET = (DeprecationWarning, FutureWarning, PendingDeprecationWarning)  # API notices, not about the graph
 
 
-def export_model(model, path, *, form: str = "stream", opset: int = DEFAULT_OPSET, masking: str | None = None,
-                 training_data=None, exporter: str = "auto", verify: bool = True) -> ExportReport:
-    """Export a `MaskedCorrelator` (any DFT backend) to ``path``; check and describe the file.
+def _run_exporter(kind: str, module, inputs, path, input_names, output_names, opset) -> list[str]:
+    """One ``torch.onnx.export`` call; returns the warnings it raised that concern the graph
+    (re-issued to the caller as well), dropping the exporters' deprecation notices."""
+    kwargs = dict(input_names=input_names, output_names=output_names, opset_version=opset,
+                  dynamo=kind == "dynamo", external_data=False)
+    if kind == "dynamo":
+        kwargs["verbose"] = False
+    else:
+        kwargs["do_constant_folding"] = True
+    # the dynamo exporter logs one line per torchvision op it cannot register: not about this graph
+    registration = logging.getLogger("torch.onnx._internal.exporter._registration")
+    level = registration.level
+    registration.setLevel(logging.ERROR)
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            with torch.no_grad():
+                torch.onnx.export(module, inputs, str(path), **kwargs)
+    finally:
+        registration.setLevel(level)
+    kept = []
+    for w in caught:
+        if issubclass(w.category, _QUIET):
+            continue
+        text = f"{kind} exporter: {w.category.__name__}: {str(w.message).splitlines()[0][:300]}"
+        if text not in kept:
+            kept.append(text)
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return kept
 
-    ``exporter``: ``"auto"`` (dynamo, falling back to TorchScript), ``"dynamo"`` or
-    ``"torchscript"``. ``verify`` runs the file in onnxruntime against the torch model on random
-    inputs and records the largest pose difference.
+
+def _export_with(exporter: str, module, inputs, path, input_names, output_names, opset):
+    """Run ``exporter`` ("auto": dynamo, then TorchScript if the dynamo exporter itself fails);
+    returns (the exporter used, notes)."""
+    if exporter not in EXPORTERS:
+        raise ExportError(f"exporter must be one of {EXPORTERS}, got {exporter!r}")
+    notes = []
+    for kind in (("dynamo", "torchscript") if exporter == "auto" else (exporter,)):
+        try:
+            return kind, notes + _run_exporter(kind, module, inputs, path, input_names, output_names, opset)
+        except torch.onnx.errors.OnnxExporterError as exc:  # the exporter's own failure, nothing else
+            text = re.sub(r"\x1b\[[0-9;]*m", "", str(exc)).strip()  # the exporter colours its messages
+            first = text.splitlines()[0][:300] if text else ""
+            why = f"the {kind} exporter failed ({type(exc).__name__}: {first})"
+            if exporter != "auto" or kind == "torchscript":
+                raise ExportError(why) from exc
+            warnings.warn(why + "; falling back to the TorchScript exporter", RuntimeWarning, stacklevel=3)
+            notes.append(why + "; fell back to the TorchScript exporter")
+    raise AssertionError("unreachable")
+
+
+def verify_graph(path, reference: nn.Module, inputs, tolerance: Tolerance = DEFAULT_TOLERANCE) -> tuple[float, float]:
+    """Run the file at ``path`` (as the runtime loads it: `OnnxModel`, metadata and signature
+    checked) and ``reference`` in torch on ``inputs``; `ExportError` if pose or covariance differ
+    beyond ``tolerance`` or are not finite. Returns (max |Δpose|, ‖ΔΣ‖/‖Σ‖)."""
+    from radar_odom.onnx_model import OnnxModel
+
+    try:
+        ort_model = OnnxModel(path, threads=1)
+    except RadarOdomError as exc:
+        raise ExportError(f"the written file does not load as the runtime loads it: {exc}") from None
+    with torch.no_grad():
+        ref = reference(*inputs)
+    ref_pose, ref_cov = ref[0].double().numpy(), ref[1].double().numpy()
+    out = ort_model.run({n: x.numpy() for n, x in zip(ort_model.info.inputs, inputs)})
+    pose, cov = out["pose"].astype(np.float64), out["covariance"].astype(np.float64)
+    if not (np.all(np.isfinite(pose)) and np.all(np.isfinite(cov))):
+        raise ExportError(f"onnxruntime gives non-finite outputs (pose {pose.ravel()}) where torch gives "
+                          f"{ref_pose.ravel()}: the graph does not compute the model")
+    d = np.abs(pose - ref_pose)
+    dpose = float(d.max())
+    dcov = float(np.linalg.norm(cov - ref_cov) / max(np.linalg.norm(ref_cov), 1e-30))
+    if d[..., :2].max() > tolerance.pose_m or d[..., 2].max() > tolerance.yaw_rad or dcov > tolerance.covariance:
+        raise ExportError(
+            f"onnxruntime and torch disagree on fresh random inputs: |Δx, Δy| = {d[..., :2].max():.3g} m "
+            f"(tolerance {tolerance.pose_m:g}), |Δyaw| = {d[..., 2].max():.3g} rad (tolerance "
+            f"{tolerance.yaw_rad:g}), ‖ΔΣ‖/‖Σ‖ = {dcov:.3g} (tolerance {tolerance.covariance:g}): "
+            "the exported graph does not compute the model (e.g. a branch frozen at trace time); "
+            "nothing was written"
+        )
+    return dpose, dcov
+
+
+def _file_mode(path: Path) -> int:
+    """The permission bits ``path`` keeps (if it exists) or an ordinary new file gets."""
+    try:
+        return path.stat().st_mode & 0o777
+    except OSError:
+        mask = os.umask(0)
+        os.umask(mask)
+        return 0o666 & ~mask
+
+
+def write_graph(module: nn.Module, example_inputs, path, metadata: dict, *, input_names, output_names,
+                exporter: str = "auto", opset: int = DEFAULT_OPSET, verify: bool = True, verify_inputs=None,
+                reference: nn.Module | None = None, tolerance: Tolerance = DEFAULT_TOLERANCE,
+                doc_string: str = "") -> ExportReport:
+    """Trace ``module`` on ``example_inputs`` and write it to ``path`` as a checked model file.
+
+    ``metadata``: the fields of `radar_odom.model_file.build_metadata` but ``opset`` and
+    ``exporter`` (`model_fields`), which this fills in. ``verify``: compare onnxruntime with
+    ``reference`` (default: ``module``) in torch on ``verify_inputs``, which must differ from the
+    trace inputs. Atomic: all checks run on a temporary file in ``path``'s folder that is then
+    renamed to ``path``; on any failure ``path`` is untouched and the temporary file removed.
+    Raises `ExportError` when a check fails (see the module docstring).
     """
     import onnx
 
-    if form not in ("stream", "pair"):
-        raise ValueError(f"form must be 'stream' or 'pair', got {form!r}")
     t0 = time.perf_counter()
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    m = exportable(model)
-    module = StreamGraph(m) if form == "stream" else PairGraph(m)
-    inputs = example_inputs(m, form)
-    input_names, output_names = io_names(m, form)
-    notes = []
-    tried = ["dynamo", "torchscript"] if exporter == "auto" else [exporter]
-    used, errors = None, []
-    with tempfile.TemporaryDirectory() as tmp:
-        raw = Path(tmp) / "graph.onnx"
-        for kind in tried:
-            try:
-                with torch.no_grad():
-                    _torch_export(module, inputs, raw, input_names, output_names, opset, dynamo=(kind == "dynamo"))
-                used = kind
-                break
-            except Exception as exc:  # noqa: BLE001 - any exporter failure means: try the next one
-                errors.append(f"{kind}: {type(exc).__name__}: {str(exc).splitlines()[0][:300] if str(exc) else ''}")
-        if used is None:
-            raise ExportError("every exporter failed:\n" + "\n".join(errors))
-        if errors:
-            notes.append("fell back from " + "; ".join(errors))
-        proto = onnx.load(str(raw))
-    state_shape = None
-    if form == "stream":
-        state_shape = tuple(inputs[1].shape)
-    meta = build_metadata(m, form, opset, used, masking or m.masking, training_data, state_shape)
-    strip_node_metadata(proto)
-    del proto.metadata_props[:]
-    for k, v in meta.items():
-        proto.metadata_props.add(key=k, value=v)
-    proto.doc_string = (f"radar-odom {radar_odom.__version__}: Masking by Moving radar odometry, "
-                        f"profile {m.profile.name}, {form} form")
-    onnx.save(proto, str(path))
-    checked = check_onnx_file(path, opset)
-    report = ExportReport(path, form, used, checked["opset"], checked["bytes"], checked["ops"], meta,
-                          time.perf_counter() - t0, notes=notes)
+    form = metadata["form"]
     if verify:
-        report.max_pose_diff = verify_against_torch(path, model, form)
-        report.seconds = time.perf_counter() - t0
+        if verify_inputs is None:
+            raise ValueError("verify=True needs verify_inputs (fresh inputs, not the traced ones)")
+        if all(torch.equal(a, b) for a, b in zip(example_inputs, verify_inputs)):
+            raise ValueError("verify_inputs are the traced inputs: verification needs fresh ones")
+    _metadata(metadata, opset, exporter)  # refuse metadata the runtime would refuse before tracing
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
+    os.close(fd)
+    tmp = Path(tmp_name)
+    os.chmod(tmp, _file_mode(path))  # mkstemp makes it private; the result is an ordinary file
+    try:
+        module = module.eval()
+        used, notes = _export_with(exporter, module, tuple(example_inputs), tmp, list(input_names),
+                                   list(output_names), opset)
+        meta = _metadata(metadata, opset, used)
+        proto = onnx.load(str(tmp))
+        strip_node_metadata(proto)
+        del proto.metadata_props[:]
+        for k, v in meta.items():
+            proto.metadata_props.add(key=k, value=v)
+        proto.doc_string = doc_string
+        onnx.save(proto, str(tmp))
+        del proto
+        checked = check_onnx_file(tmp, opset)
+        report = ExportReport(path, form, used, checked["opset"], checked["bytes"], checked["ops"], meta,
+                              0.0, notes=notes)
+        if verify:
+            report.max_pose_diff, report.max_cov_diff = verify_graph(
+                tmp, module if reference is None else reference, tuple(verify_inputs), tolerance)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    report.seconds = time.perf_counter() - t0
     return report
 
 
-def verify_against_torch(path, model, form: str, seed: int = 1) -> float:
-    """max |pose_ORT − pose_torch| on random inputs (torch: ``model`` with its own backend)."""
-    from radar_odom.onnx_model import OnnxModel
+# ----------------------------------------------------------------------------- search modes
+def export_model(model, path, *, form: str = "stream", opset: int = DEFAULT_OPSET, masking: str | None = None,
+                 training_data=None, exporter: str = "auto", verify: bool = True,
+                 tolerance: Tolerance = DEFAULT_TOLERANCE) -> ExportReport:
+    """Export a `MaskedCorrelator` (any DFT backend) with the exhaustive search to ``path``.
 
-    ort_model = OnnxModel(path)
+    ``exporter``: ``"auto"`` (dynamo, falling back to TorchScript if it fails), ``"dynamo"`` or
+    ``"torchscript"``. ``verify`` runs the file in onnxruntime against the torch model with its
+    own backend (FFT for a trained model) on fresh random inputs; see `write_graph`.
+    """
+    if form not in ("stream", "pair"):
+        raise ValueError(f"form must be 'stream' or 'pair', got {form!r}")
+    m = exportable(model)
+    graph = StreamGraph if form == "stream" else PairGraph
+    inputs = example_inputs(m, form, seed=TRACE_SEED)
+    original = copy.deepcopy(model).cpu().eval()
+    fields = model_fields(m, form, masking, training_data, tuple(inputs[1].shape) if form == "stream" else None)
+    input_names, output_names = io_names(m.profile, form)
+    return write_graph(
+        graph(m), inputs, path, fields, input_names=input_names, output_names=output_names, exporter=exporter,
+        opset=opset, verify=verify, verify_inputs=example_inputs(original, form, seed=VERIFY_SEED) if verify else None,
+        reference=graph(original), tolerance=tolerance,
+        doc_string=f"radar-odom {radar_odom.__version__}: Masking by Moving radar odometry, "
+                   f"profile {m.profile.name}, {form} form")
+
+
+class FastStreamGraph(nn.Module):
+    """(sweep, prev_state) → (pose, covariance, state): `fast_search.FastStreamStep`."""
+
+    def __init__(self, step: FastStreamStep):
+        super().__init__()
+        self.step = step
+
+    def forward(self, sweep, prev_state):
+        return self.step(sweep, prev_state)
+
+
+def export_fast(model, path, settings: FastSearchSettings | None = None, *, opset: int = DEFAULT_OPSET,
+                masking: str | None = None, training_data=None, exporter: str = "auto", verify: bool = True,
+                tolerance: Tolerance = DEFAULT_TOLERANCE) -> ExportReport:
+    """Export ``model`` in the stream form with the fast search (`fast_search.FastStreamStep`);
+    the file contract of `export_model` (inputs ``cart``/``polar`` + ``prev_state``; outputs
+    ``pose``, ``covariance``, ``state``; metadata, checks) plus ``radar_odom.search`` metadata.
+    ``verify`` compares with the torch fast step on fresh random inputs.
+    """
     m = copy.deepcopy(model).cpu().eval()
-    inputs = example_inputs(m, form, seed=seed)
-    with torch.no_grad():
-        ref = StreamGraph(m)(*inputs) if form == "stream" else PairGraph(m)(*inputs)
-    names = list(ort_model.info.inputs)
-    out = ort_model.run({n: x.numpy() for n, x in zip(names, inputs)})
-    return float(np.max(np.abs(out["pose"] - ref[0].numpy())))
-
-
-SEARCHES = ("exhaustive", "fast")
+    step = FastStreamStep(m, settings).eval()
+    inputs = example_inputs(m, "stream", seed=TRACE_SEED)
+    search = {"kind": "coarse_to_fine", **asdict(step.settings), "band_rotations": step.band}
+    fields = model_fields(m, "stream", masking, training_data, tuple(inputs[1].shape), search=search)
+    input_names, output_names = io_names(m.profile, "stream")
+    return write_graph(
+        FastStreamGraph(step), inputs, path, fields, input_names=input_names, output_names=output_names,
+        exporter=exporter, opset=opset, verify=verify,
+        verify_inputs=example_inputs(m, "stream", seed=VERIFY_SEED) if verify else None, tolerance=tolerance,
+        doc_string=f"radar-odom {radar_odom.__version__}: Masking by Moving radar odometry, profile "
+                   f"{m.profile.name}, stream form, fast search {step.settings.label()}")
 
 
 def export_checkpoint(checkpoint, path, *, form: str | None = None, opset: int = DEFAULT_OPSET,
@@ -387,6 +533,10 @@ def export_checkpoint(checkpoint, path, *, form: str | None = None, opset: int =
     """
     from .checkpoint import load_checkpoint
 
+    if search not in SEARCHES:
+        raise ExportError(f"search must be one of {SEARCHES}, got {search!r}")
+    if search == "fast" and (form or "stream") != "stream":
+        raise ExportError("the fast search exists for the stream form only; use --form stream or --search exhaustive")
     model, meta = load_checkpoint(checkpoint, dft="fft")
     geometry = meta.get("train", {}).get("sweep_geometry")
     if geometry and model.to_cartesian is None:
@@ -396,13 +546,7 @@ def export_checkpoint(checkpoint, path, *, form: str | None = None, opset: int =
     training = {"checkpoint": os.path.basename(str(checkpoint)), "train": meta.get("train", {})}
     if "calibration" in meta:
         training["calibration"] = meta["calibration"]
-    if search not in SEARCHES:
-        raise ExportError(f"search must be one of {SEARCHES}, got {search!r}")
+    common = dict(opset=opset, masking=meta["masking"], training_data=training, exporter=exporter, verify=verify)
     if search == "fast":
-        if (form or "stream") != "stream":
-            raise ExportError("the fast search exists for the stream form only; use --form stream or --search exhaustive")
-        from .fast_search import export_fast
-
-        return export_fast(model, path, opset=opset, masking=meta["masking"], training_data=training, verify=verify)
-    return export_model(model, path, form=form or "stream", opset=opset, masking=meta["masking"],
-                        training_data=training, exporter=exporter, verify=verify)
+        return export_fast(model, path, **common)
+    return export_model(model, path, form=form or "stream", **common)

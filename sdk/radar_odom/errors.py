@@ -22,7 +22,10 @@ class StreamError(RadarOdomError, ValueError):
 
 
 class ExportError(RadarOdomError, ValueError):
-    """An export request cannot be met (form and search that do not go together, ...)."""
+    """An export cannot be made or its file fails a check: a request that cannot be met (form and
+    search that do not go together, ...), an exporter that fails, a file that breaks a promise
+    (opset, size, forbidden ops, checker), or onnxruntime's outputs differing from torch's beyond
+    the tolerance. Defined here only; ``radar_odom_export`` raises this class."""
 
 
 class MissingExtraError(RadarOdomError, ImportError):

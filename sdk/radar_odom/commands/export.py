@@ -1,5 +1,8 @@
-"""``radar-odom export model.pt [-o model.onnx] [--form stream|pair] [--search exhaustive|fast] [--opset N]``."""
+"""``radar-odom export model.pt [-o model.onnx] [--form stream|pair] [--search exhaustive|fast] [--opset N]
+[--exporter auto|dynamo|torchscript]``."""
 from __future__ import annotations
+
+from ..model_file import DEFAULT_OPSET
 
 HELP = "export a trained checkpoint to one self-contained ONNX graph (sweep in, pose + covariance out)"
 
@@ -17,9 +20,14 @@ def register(subparsers) -> None:
     p.add_argument("--search", choices=("exhaustive", "fast"), default="exhaustive",
                    help="exhaustive: score every yaw candidate (the paper's search); fast: coarse-to-fine yaw "
                         "search, several times faster on a CPU, stream form only (default: exhaustive)")
-    p.add_argument("--opset", type=int, default=18, help="ONNX opset to write; the written file is checked to have it (default: 18)")
+    p.add_argument("--opset", type=int, default=DEFAULT_OPSET,
+                   help=f"ONNX opset to write; the written file is checked to have it (default: {DEFAULT_OPSET})")
+    p.add_argument("--exporter", choices=("auto", "dynamo", "torchscript"), default="auto",
+                   help="torch.onnx exporter; auto: dynamo, falling back to TorchScript only if the dynamo "
+                        "exporter itself fails (default: auto)")
     p.add_argument("--no-verify", action="store_true",
-                   help="skip the onnxruntime-vs-torch check run on a random sweep after writing")
+                   help="skip the onnxruntime-vs-torch check on fresh random sweeps (a difference beyond the "
+                        "tolerance fails the export and writes nothing)")
     p.set_defaults(func=run)
 
 
@@ -42,6 +50,6 @@ def run(args) -> int:
     else:
         out = Path(f"{ckpt.stem}.onnx")
     report = export_checkpoint(ckpt, out, form=args.form, opset=args.opset, verify=not args.no_verify,
-                               search=args.search)
+                               search=args.search, exporter=args.exporter)
     print(report.summary())
     return 0
