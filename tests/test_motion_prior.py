@@ -460,6 +460,7 @@ def test_run_command_switches_the_prior_off(cart08, tmp_path, capsys):
     assert any(abs(float(on["x_m"]) - float(on["meas_x_m"])) > 1e-6 for on in rows["on"][1:])
 
 
+@pytest.mark.torch
 def test_evaluation_applies_the_runtime_prior_to_a_drive():
     pytest.importorskip("torch")
     from radar_odom_export.evaluate import with_motion_prior

@@ -1,8 +1,9 @@
 """The torch-free runtime: RadarOdometer over synthetic sweeps, its faults, pretrained models, threads.
 
-The model is an untrained raw-scan export (mask ≡ 1) on a tiny grid, made once per module into
-a temporary folder; sweeps come from a point-reflector world rendered in polar form at known
-poses, so the expected relative poses are known exactly.
+The model is an untrained raw-scan export (mask ≡ 1) on a tiny grid, committed in tests/fixtures
+(made by tests/fixtures/make_models.py), so these tests need no torch; sweeps come from a
+point-reflector world rendered in polar form at known poses, so the expected relative poses are
+known exactly.
 """
 import subprocess
 import sys
@@ -19,41 +20,23 @@ from radar_odom.profiles import GridProfile
 from radar_odom.scan import RadarScan
 from radar_odom.se2 import invert, se2, to_xyyaw
 
+from fixtures import GEOM, TINY
+
 # small radar: 120 azimuths, 160 bins of 0.3 m (48 m); tiny grid: 64 px at 1.6 m, ±2 cells, 5 yaws
-# 0.05 rad apart (rotations much finer than the grid cannot be told apart by raw correlation)
-GEOM = {"num_azimuths": 120, "num_bins": 160, "range_resolution_m": 0.3, "range_offset_m": 0.0}
-TINY = GridProfile("tiny-test", resolution_m=1.6, width_px=64, max_translation_m=3.2,
-                   rotation_range_rad=0.1, rotation_step_rad=0.05, near_range_m=0.0,
-                   unet_base_channels=4, unet_depth=3)
+# 0.05 rad apart (tests/fixtures/make_models.py, which made the committed models these tests read)
 PERIOD_US = 250_000
 T0_US = 1_547_131_046_000_000
 
 
 @pytest.fixture(scope="module")
-def model_path(tmp_path_factory):
-    pytest.importorskip("torch")
-    from radar_odom_export.model import MaskedCorrelator
-    from radar_odom_export.onnx_export import export_model
-
-    path = tmp_path_factory.mktemp("onnx") / "tiny-raw.onnx"
-    # the TorchScript exporter is 8× faster on this model; the default exporter is tested in
-    # test_onnx_export, and the runtime reads either file the same way
-    export_model(MaskedCorrelator(TINY, masking="raw", sweep_geometry=GEOM), path, verify=False,
-                 exporter="torchscript")
-    return path
+def model_path(tiny_model):
+    return tiny_model
 
 
 @pytest.fixture(scope="module")
-def polar_model_path(tmp_path_factory):
+def polar_model_path(tiny_polar_model):
     """The tiny raw model with polar input: built for GEOM, and for GEOM only."""
-    pytest.importorskip("torch")
-    from radar_odom_export.model import MaskedCorrelator
-    from radar_odom_export.onnx_export import export_model
-
-    path = tmp_path_factory.mktemp("onnx") / "tiny-polar-raw.onnx"
-    export_model(MaskedCorrelator(TINY.with_(name="tiny-polar", input_kind="polar"), masking="raw",
-                                  sweep_geometry=GEOM), path, verify=False, exporter="torchscript")
-    return path
+    return tiny_polar_model
 
 
 def world_points(seed=0, n=160):
@@ -149,14 +132,10 @@ def test_configures_itself_from_metadata(model_path):
     np.testing.assert_allclose(np.diag(window_covariance(TINY)), [3.2**2 / 3, 3.2**2 / 3, 0.1**2 / 3])
 
 
-def test_pair_form_model_gives_the_same_estimates(model_path, tmp_path):
-    pytest.importorskip("torch")
-    from radar_odom_export.model import MaskedCorrelator
-    from radar_odom_export.onnx_export import export_model
-
-    pair = tmp_path / "pair.onnx"
-    export_model(MaskedCorrelator(TINY, masking="raw", sweep_geometry=GEOM), pair, form="pair", verify=False,
-                 exporter="torchscript")
+def test_pair_form_model_gives_the_same_estimates(model_path, tiny_pair_model):
+    pair = tiny_pair_model
+    odo = RadarOdometer(pair)
+    assert odo.info.form == "pair" and odo.profile == TINY and odo.info.sweep_geometry == GEOM
     scans = drive((1.6, 0.0, 0.05), 4, seed=2)
     outs = []
     for path in (model_path, pair):
@@ -245,6 +224,7 @@ def test_cartesian_model_refuses_a_sweep_too_short_for_its_grid(model_path):
     assert ok.max_range_m == pytest.approx(need) and odo.step(ok) is None
 
 
+@pytest.mark.torch
 def test_support_radius_is_the_exported_support_disc():
     pytest.importorskip("torch")
     from radar_odom_export.model import support_disc
@@ -402,15 +382,9 @@ def test_sweep_problem_thresholds():
     assert sweep_problem(with_power(base, valid=valid)) == "partial_coverage"
 
 
-def test_a_foreign_onnx_file_is_refused(tmp_path):
-    onnx = pytest.importorskip("onnx")
-    from onnx import TensorProto, helper
-
-    x = helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 3])
-    y = helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 3])
-    graph = helper.make_graph([helper.make_node("Identity", ["x"], ["y"])], "g", [x], [y])
-    path = tmp_path / "other.onnx"
-    onnx.save(helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)], ir_version=9), str(path))
+def test_a_foreign_onnx_file_is_refused(foreign_model, tmp_path):
+    path = tmp_path / "other.onnx"  # an Identity graph, no radar-odom metadata
+    path.write_bytes(foreign_model.read_bytes())
     with pytest.raises(ModelMismatchError, match=r"other.onnx: not a radar-odom model.*radar-odom export"):
         RadarOdometer(path)
     with pytest.raises(FileNotFoundError, match="pretrained_names"):

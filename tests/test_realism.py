@@ -80,6 +80,7 @@ def test_a_randomised_drive_simulates_valid_sweeps():
         assert 0.001 < float(np.median(scan.power)) < 0.5
 
 
+@pytest.mark.torch
 def test_sensor_specs_give_each_training_drive_its_own_radar():
     pytest.importorskip("torch")
     from radar_odom_export.data import sensor_specs
