@@ -5,6 +5,7 @@ installed from this checkout (not editable, so the wheel's package data is what 
 a venv that cannot see this interpreter's packages; torch must not be importable there at all.
 """
 import os
+import re
 import subprocess
 import sys
 import venv
@@ -53,3 +54,14 @@ def test_bare_install_runs_the_shipped_model_without_torch(tmp_path):
                          cwd=tmp_path, timeout=300)
     assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-4000:]
     assert out.stdout.startswith("ok")
+
+
+def test_ci_floors_pin_each_declared_minimum():
+    """.ci/floors.txt (what the floors job installs) is exactly the `>=` floor of every runtime dependency."""
+    text = (ROOT / "pyproject.toml").read_text()
+    block = re.search(r"^dependencies = \[(.*?)^\]", text, re.S | re.M).group(1)
+    declared = dict(re.findall(r'"([A-Za-z0-9_.-]+)>=([^",;<]+)"', block))
+    assert len(declared) == len(re.findall(r'"[^"]+"', block)), f"every runtime dependency has a >= floor: {block}"
+    pins = dict(line.split("==") for line in (ROOT / ".ci" / "floors.txt").read_text().splitlines()
+                if line.strip() and not line.startswith("#"))
+    assert pins == declared
