@@ -175,7 +175,8 @@ def test_profiling_does_not_import_torch():
 @pytest.fixture(scope="module")
 def tiny_model(tmp_path_factory):
     torch = pytest.importorskip("torch")
-    from radar_odom_export.fast_search import FastSearchSettings, export_fast
+    from radar_odom_export.fast_search import FastSearchSettings
+    from radar_odom_export.onnx_export import export_fast
     from radar_odom_export.model import MaskedCorrelator
 
     torch.manual_seed(0)
@@ -192,7 +193,8 @@ def test_profile_command_end_to_end(tiny_model, tmp_path, capsys):
 
     out = tmp_path / "prof"
     assert main(["profile", "--models", str(tiny_model), "--profiles", "--steps", "6", "--warmup", "1",
-                 "--reference-steps", "2", "--operator-steps", "2", "--rss-steps", "0", "-o", str(out),
+                 "--reference-steps", "2", "--operator-steps", "2", "--rss-steps", "0", "--file-sweeps", "6",
+                 "-o", str(out),
                  "--no-progress"]) == 0
     report = json.loads((out / "profile.json").read_text())
     (m,) = report["models"]
@@ -202,7 +204,13 @@ def test_profile_command_end_to_end(tiny_model, tmp_path, capsys):
     assert set(m["reference"]) == {"exhaustive", "same_search"}
     # the numpy version of the same search agrees with the graph on the same masked images
     assert m["reference"]["same_search"]["pose_diff_median"]["x_m"] < 0.2
+    # end to end on files: both modes stream every file, and the ratio is wall / slower stage
+    for mode in ("pipelined", "serial"):
+        f = m["files"][mode]
+        assert f["sweeps"] == 6 and f["sweeps_per_s"] > 0
+        assert f["ratio"] == pytest.approx(f["wall_per_sweep_s"] / max(f["load_median_s"], f["step_median_s"]))
     assert "| tiny |" in (out / "profile.md").read_text()
+    assert "End to end on files" in (out / "profile.md").read_text()
     assert "machine:" in capsys.readouterr().out
 
 

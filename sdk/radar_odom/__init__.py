@@ -29,6 +29,7 @@ _LAZY = {
     "write_scan": "formats",
     "read_sequence": "formats",
     "RadarOdometer": "odometer",
+    "iter_estimates": "pipeline",
     "Estimate": "odometer",
     "MotionPriorConfig": "motion_prior",
     "ExternalOdometry": "motion_prior",

@@ -36,6 +36,9 @@ def register(subparsers) -> None:
                    help="steps traced with onnxruntime's profiler for the operator table (0: none)")
     p.add_argument("--rss-steps", type=int, default=1000,
                    help="steps of a RadarOdometer stream at --rss-profile in a fresh process, sampling RSS (0: none)")
+    p.add_argument("--file-sweeps", type=int, default=100,
+                   help="sweep files streamed end to end (decode + parse + step) per model, pipelined and serially, "
+                        "for sweeps/s (0: none)")
     p.add_argument("--rss-profile", default="cart-0.4", help="profile whose model runs the RSS stream")
     p.add_argument("-o", "--output", default="radar-odom-profile", help="output folder")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
@@ -52,7 +55,7 @@ def run(args) -> int:
         print(f"note: --steps {args.steps} is below 200; p99 over so few steps is rough")
     run_profile(args.models, args.profiles, threads=args.threads, steps=args.steps, warmup=args.warmup,
                 reference_steps=args.reference_steps, operator_steps=args.operator_steps,
-                rss_steps=args.rss_steps, rss_profile=args.rss_profile, search=args.search,
+                rss_steps=args.rss_steps, file_sweeps=args.file_sweeps, rss_profile=args.rss_profile, search=args.search,
                 out_dir=args.output, command="radar-odom " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
                 progress_bar=not args.no_progress)
     return 0

@@ -8,21 +8,6 @@ from pathlib import Path
 from ..errors import RadarOdomError
 
 
-EXPORT_CHILD = r"""
-import sys, torch
-from radar_odom.profiles import get_profile
-from radar_odom_export.model import MaskedCorrelator
-torch.manual_seed(0)
-model = MaskedCorrelator(get_profile(sys.argv[1]), masking="learned").eval()
-if sys.argv[3] == "fast":
-    from radar_odom_export.fast_search import export_fast
-    export_fast(model, sys.argv[2], verify=False, training_data="untrained (radar-odom profile)")
-else:
-    from radar_odom_export.onnx_export import export_model
-    export_model(model, sys.argv[2], verify=False, training_data="untrained (radar-odom profile)")
-"""
-
-
 def untrained_model(profile_name: str, out_dir, search: str = "fast") -> Path:
     """Export (once; cached in ``out_dir``) an untrained learned-mask model of ``profile_name``.
 
@@ -33,7 +18,7 @@ def untrained_model(profile_name: str, out_dir, search: str = "fast") -> Path:
     if path.is_file():
         return path
     path.parent.mkdir(parents=True, exist_ok=True)
-    proc = subprocess.run([sys.executable, "-c", EXPORT_CHILD, profile_name, str(path), search],
+    proc = subprocess.run([sys.executable, "-m", "radar_odom_export.untrained", profile_name, str(path), search],
                           capture_output=True, text=True, check=False)
     if proc.returncode:
         if "No module named 'torch'" in proc.stderr or "No module named 'radar_odom_export'" in proc.stderr:

@@ -5,6 +5,7 @@ import json
 import math
 from pathlib import Path
 
+from .files import file_throughput
 from .memory import rss_stream
 from .models import resolve_models
 from .stats import MASKER_OPS, format_machine, machine_info
@@ -19,7 +20,7 @@ PAPER_GPU_MS = {0.8: 11.3, 0.4: 16.9, 0.2: 48.5}
 def run_profile(models=(), profiles=DEFAULT_PROFILES, *, threads: int | None = None, steps: int = 200,
                 warmup: int = 20, reference_steps: int = 30, operator_steps: int = 50, rss_steps: int = 0,
                 rss_profile: str = "cart-0.4", search: str = "fast", out_dir="radar-odom-profile",
-                distinct_sweeps: int = 24, command: str | None = None, echo=print, progress_bar=True) -> dict:
+                distinct_sweeps: int = 24, file_sweeps: int = 100, command: str | None = None, echo=print, progress_bar=True) -> dict:
     """Profile every model (see `resolve_models`), write ``profile.json`` and ``profile.md`` in
     ``out_dir``, and return the report dictionary."""
     from ..onnx_model import physical_cores
@@ -39,11 +40,14 @@ def run_profile(models=(), profiles=DEFAULT_PROFILES, *, threads: int | None = N
         r = profile_model(path, pngs, steps=steps, warmup=warmup, threads=threads,
                           reference_steps=reference_steps, operator_steps=operator_steps,
                           trace_dir=out_dir, name=label, untrained=untrained, progress_bar=progress_bar)
+        if file_sweeps > 0:
+            r.files = file_throughput(path, pngs, sweeps=file_sweeps, threads=threads)
         echo(summary_line(r))
         results.append(r.to_dict())
     report = {"command": command, "machine": machine,
               "settings": {"steps": steps, "warmup": warmup, "threads": threads, "reference_steps": reference_steps,
                            "operator_steps": operator_steps, "distinct_sweeps": distinct_sweeps,
+                           "file_sweeps": file_sweeps,
                            "sweeps": f"simulated, seed {PROFILE_SEED}, urban"},
               "models": results, "rss_stream": None}
     if rss_steps:
@@ -107,7 +111,15 @@ def summary_line(r: ModelProfile) -> str:
     tail = f" (paper GPU {paper} ms)" if paper else ""
     return (f"{r.name}: step {st['median']:.1f} ms median{tail}, graph {g['median']:.1f} ms, "
             f"p2c {r.stages['polar_to_cartesian']['median']:.1f} ms, decode {r.stages['png_decode']['median']:.1f} ms, "
-            f"peak RSS {r.peak_rss_mb:.0f} MiB")
+            f"peak RSS {r.peak_rss_mb:.0f} MiB" + _files_tail(r.files))
+
+
+def _files_tail(files: dict) -> str:
+    f = (files or {}).get("pipelined")
+    if not f:
+        return ""
+    return (f"; files: {f['sweeps_per_s']:.1f} sweeps/s pipelined, wall / max(read, step) {f['ratio']:.2f}"
+            + (f" (serial {files['serial']['ratio']:.2f})" if files.get("serial") else ""))
 
 
 def markdown_report(report: dict) -> str:
@@ -149,6 +161,19 @@ def markdown_report(report: dict) -> str:
         lines += ["", "Pose agreement, graph vs numpy-FFT reference (median |Δ| over the reference steps):", ""]
         lines += [f"- {name}, {k.replace('_', ' ')}: x {d['x_m']:.3f} m, y {d['y_m']:.3f} m, "
                   f"yaw {math.degrees(d['yaw_rad']):.3f}°" for name, k, d in agreement]
+    with_files = [r for r in report["models"] if (r.get("files") or {}).get("pipelined")]
+    if with_files:
+        lines += ["", f"End to end on files: {st.get('file_sweeps')} Oxford-layout sweep files read back from disk "
+                      "through `radar_odom.iter_estimates` (PNG decode + parse + polar→Cartesian on a worker "
+                      "thread while the graph runs, and the same serially). *Ratio* = wall per sweep / "
+                      "max(median read, median step); 1.0 is perfect overlap.", "",
+                  "| model | pipelined sweeps/s | ms per sweep | read median | step median | ratio "
+                  "| serial sweeps/s | serial ratio |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
+        for r in with_files:
+            p, s = r["files"]["pipelined"], r["files"].get("serial") or {}
+            lines.append(f"| {r['name']} | {p['sweeps_per_s']:.1f} | {1e3 * p['wall_per_sweep_s']:.1f} "
+                         f"| {1e3 * p['load_median_s']:.1f} | {1e3 * p['step_median_s']:.1f} | {p['ratio']:.2f} "
+                         f"| {s.get('sweeps_per_s', float('nan')):.1f} | {s.get('ratio', float('nan')):.2f} |")
     rs = report.get("rss_stream")
     if rs:
         lines += ["", f"Memory: {rs['steps']} steps of {rs['model']} through `RadarOdometer` in a fresh process: "

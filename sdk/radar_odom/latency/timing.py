@@ -29,6 +29,7 @@ class ModelProfile:
     reference: dict = field(default_factory=dict)
     masker: dict = field(default_factory=dict)  # latency_summary of the masker's operators (traced)
     peak_rss_mb: float | None = None
+    files: dict = field(default_factory=dict)  # "pipelined" / "serial" -> pipeline.Throughput.as_dict()
     notes: list = field(default_factory=list)
 
     def to_dict(self) -> dict:
