@@ -74,7 +74,7 @@ def blank_like(scan):
 def soak(steps: int, model: str, threads: int | None, pool_size: int, bad_every: int, seed: int,
          progress: bool = True) -> dict:
     from radar_odom import RadarOdometer
-    from radar_odom.pretrained import resolve_model
+    from radar_odom.model_zoo import resolve_model
 
     t_sim = time.perf_counter()
     pool = sweep_pool(pool_size, seed)

@@ -28,7 +28,7 @@ from radar_odom.errors import (
 from radar_odom.formats import load_scan, read_sequence, write_scan
 from radar_odom.odometer import RadarOdometer, azimuth_coverage, sweep_problem, window_covariance
 from radar_odom.onnx_model import ModelInfo, OnnxModel, profile_digest
-from radar_odom.pretrained import UnknownModelError, pretrained, pretrained_names
+from radar_odom.model_zoo import UnknownModelError, pretrained, pretrained_names
 from radar_odom.scan import RadarScan
 
 from fixtures import with_metadata

@@ -119,8 +119,8 @@ def test_demo_runs_end_to_end_with_a_given_model(model_path, tmp_path, capsys):
 def test_demo_without_shipped_models_is_a_clear_error(tmp_path, capsys, monkeypatch):
     import importlib
 
-    # the module, not the same-named public function `radar_odom.pretrained`
-    pretrained = importlib.import_module("radar_odom.pretrained")
+    # the module that defines `radar_odom.pretrained`
+    pretrained = importlib.import_module("radar_odom.model_zoo")
     monkeypatch.setattr(pretrained, "MODELS_DIR", tmp_path / "none")
     assert main(["demo", "--frames", "3", "-o", str(tmp_path / "d")]) == 1
     assert "ships no pretrained models" in capsys.readouterr().err

@@ -30,7 +30,7 @@ from radar_odom.errors import RadarOdomError
 from radar_odom.formats import load_scan, write_scan
 from radar_odom.odometer import RadarOdometer, model_region_m, window_covariance
 from radar_odom.onnx_model import ModelInfo, OnnxModel
-from radar_odom.pretrained import pretrained, pretrained_names
+from radar_odom.model_zoo import pretrained, pretrained_names
 from radar_odom.scan import RadarScan
 
 SCALE = float(os.environ.get("RADAR_ODOM_FUZZ_SCALE", "1"))

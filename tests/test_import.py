@@ -21,12 +21,14 @@ def test_cli_help_lists_commands():
     assert "radar-odom" in out
 
 
-def test_pretrained_stays_the_function_whatever_is_imported_first():
-    """`radar_odom.pretrained` is both a submodule and the public function; the function must win."""
+def test_pretrained_is_the_function_and_no_module_shadows_it():
+    """`radar_odom.pretrained` is the public function; the module defining it has another name
+    (`model_zoo`), so importing any submodule first cannot rebind the package attribute."""
     code = (
-        "import radar_odom\n"
-        "radar_odom.pretrained_names()\n"
-        "import radar_odom.pretrained, radar_odom.odometer, radar_odom.demo\n"
+        "import importlib, pkgutil, radar_odom\n"
+        "names = [m.name for m in pkgutil.iter_modules(radar_odom.__path__)]\n"
+        "assert 'pretrained' not in names, names\n"
+        "import radar_odom.model_zoo, radar_odom.odometer, radar_odom.demo\n"
         "assert callable(radar_odom.pretrained), radar_odom.pretrained\n"
         "from radar_odom import pretrained\n"
         "assert callable(pretrained)\n"

@@ -15,7 +15,7 @@ from radar_odom.model_file import (
     expected_state_shape,
 )
 from radar_odom.onnx_model import OnnxModel
-from radar_odom.pretrained import pretrained, pretrained_names
+from radar_odom.model_zoo import pretrained, pretrained_names
 
 
 @pytest.fixture(scope="module")

@@ -30,17 +30,14 @@ _LAZY = {
     "read_sequence": "formats",
     "RadarOdometer": "odometer",
     "iter_estimates": "pipeline",
+    "pretrained": "model_zoo",
+    "pretrained_names": "model_zoo",
     "Estimate": "odometer",
     "MotionPriorConfig": "motion_prior",
     "ExternalOdometry": "motion_prior",
 }
 
-# Eager, not lazy: `pretrained` is also the name of the submodule that defines it, and importing
-# that submodule (which `pretrained_names()` or the odometer do) would bind the package attribute
-# `radar_odom.pretrained` to the module, shadowing the function. pretrained.py is light (no numpy).
-from .pretrained import pretrained, pretrained_names  # noqa: E402
-
-__all__ = sorted([*_LAZY, "pretrained", "pretrained_names"]) + ["__version__"]
+__all__ = sorted(_LAZY) + ["__version__"]
 
 
 def __getattr__(name: str):

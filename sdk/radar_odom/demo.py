@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .pretrained import default_model_name
+from .model_zoo import default_model_name
 
 DEFAULT_FRAMES = 120  # 30 s at 4 Hz: long enough for 100 m KITTI segments at urban speeds
 DEFAULT_SEED = 9005  # held out (training 1000-2999); a drive with a 84° turn and a stop
@@ -22,7 +22,7 @@ def run_demo(frames: int = DEFAULT_FRAMES, model: str | None = None, seed: int =
     """
     import time
 
-    from .pretrained import resolve_model
+    from .model_zoo import resolve_model
     from .run import format_metrics, run_sequence
     from .sim import write_drive
 

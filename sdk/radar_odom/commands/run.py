@@ -47,7 +47,7 @@ def run(args) -> int:
 
     from ..errors import GroundTruthWarning, OutputError, RadarOdomError
     from ..pipeline import DEFAULT_PREFETCH
-    from ..pretrained import default_model_name, resolve_model
+    from ..model_zoo import default_model_name, resolve_model
     from ..run import format_metrics, run_sequence
 
     model = resolve_model(args.model or default_model_name())

@@ -34,7 +34,7 @@ def resolve_models(models, profiles, out_dir, search: str = "fast", echo=print) 
     ``profiles`` not covered by them (same resolution and width) the shipped model of that name,
     or failing that an untrained export."""
     from ..onnx_model import ModelInfo
-    from ..pretrained import pretrained, pretrained_names, resolve_model
+    from ..model_zoo import pretrained, pretrained_names, resolve_model
     from ..profiles import get_profile
 
     chosen, covered = [], set()
