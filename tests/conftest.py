@@ -27,13 +27,7 @@ FIXTURE_DIR = Path(__file__).resolve().parent / "fixtures"
 
 # runtime test files that still export their model with torch; the torch-free job reports their
 # skips but does not fail on them. Empty this as each one moves to a committed fixture.
-PENDING_TORCHLESS = {
-    "tests/test_cli_run.py": "exports its model in a fixture: take `cli_model`",
-    "tests/test_pipeline.py": "exports its model in a fixture: take `cli_model` (the same grid)",
-    "tests/test_profiling.py": "exports its model in a fixture: take `fast_learned_model`; the torch "
-                               "parity test is to be marked torch",
-    "tests/test_pretrained_models.py": "the export-by-name test is to be marked torch",
-}
+PENDING_TORCHLESS: dict[str, str] = {}  # test files not yet torch-free (path -> what is left to do)
 
 
 def real_data_path() -> Path:

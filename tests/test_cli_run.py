@@ -4,26 +4,17 @@ import pytest
 
 from radar_odom.cli import main
 from radar_odom.formats import read_sequence
-from radar_odom.profiles import GridProfile
 from radar_odom.run import evaluate, format_metrics, read_estimates_csv
 from radar_odom.se2 import chain_relative
 from radar_odom.trajectory import read_kitti, read_tum
 
-# a raw-scan (untrained) model on a coarse grid for the simulator's CTS350-X sweeps
-PROFILE = GridProfile("cli-test", resolution_m=1.6, width_px=64, max_translation_m=4.8,
-                      rotation_range_rad=0.1, rotation_step_rad=0.05, unet_base_channels=4, unet_depth=3)
 FRAMES = 6
 
 
 @pytest.fixture(scope="module")
-def model_path(tmp_path_factory):
-    pytest.importorskip("torch")
-    from radar_odom_export.model import MaskedCorrelator
-    from radar_odom_export.onnx_export import export_model
-
-    path = tmp_path_factory.mktemp("model") / "raw.onnx"
-    export_model(MaskedCorrelator(PROFILE, masking="raw"), path, verify=False)
-    return path
+def model_path(cli_model):
+    """The committed untrained raw-scan model of the simulator's default sweeps (no torch needed)."""
+    return cli_model
 
 
 @pytest.fixture(scope="module")

@@ -15,6 +15,7 @@ def test_the_default_models_are_shipped():
     assert {"cart-0.8", "cart-0.4"} <= set(SHIPPED)
 
 
+@pytest.mark.torch
 @pytest.mark.parametrize("name", SHIPPED)
 def test_shipped_model_keeps_the_export_contract(name):
     # only this check needs the export extra; the others run on a bare install
@@ -45,6 +46,7 @@ def test_shipped_model_is_a_calibrated_learned_stream_model_of_its_profile(name)
 
 
 @pytest.mark.slow
+@pytest.mark.torch
 @pytest.mark.parametrize("name", ["cart-0.8"])
 def test_export_by_name_rebuilds_the_shipped_graph(name, tmp_path):
     """`radar-odom export NAME` works from a fresh checkout: the shipped checkpoint is the

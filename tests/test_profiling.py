@@ -114,6 +114,7 @@ def test_reference_search_recovers_a_known_pose(pose):
     assert np.allclose(fast.search(np.fft.rfft2(prev), cur)[0], got, atol=0.05)
 
 
+@pytest.mark.torch
 def test_reference_equals_the_torch_exhaustive_step():
     torch = pytest.importorskip("torch")
     from radar_odom_export.model import MaskedCorrelator
@@ -173,17 +174,12 @@ def test_profiling_does_not_import_torch():
 
 # ------------------------------------------------------------------ end to end
 @pytest.fixture(scope="module")
-def tiny_model(tmp_path_factory):
-    torch = pytest.importorskip("torch")
-    from radar_odom_export.fast_search import FastSearchSettings
-    from radar_odom_export.onnx_export import export_fast
-    from radar_odom_export.model import MaskedCorrelator
+def tiny_model(fast_learned_model, tmp_path_factory):
+    """The committed seeded learned-mask model with the coarse-to-fine search, named ``tiny``."""
+    import shutil
 
-    torch.manual_seed(0)
-    profile = small_profile(unet_base_channels=4, unet_depth=2, near_range_m=2.5, beta_pose=1.0, beta_cov=1.0)
-    model = MaskedCorrelator(profile, masking="learned").eval()
     path = tmp_path_factory.mktemp("profile") / "tiny.onnx"
-    export_fast(model, path, FastSearchSettings(coarse_factor=2, coarse_stride=2, band_half_width=1), verify=False)
+    shutil.copyfile(fast_learned_model, path)
     return path
 
 
