@@ -187,7 +187,8 @@ def oxford_pair(real: Path, opt: Options, variant: Variant) -> dict:
 
 def radiate_run(real: Path, opt: Options, variant: Variant) -> dict:
     from radar_odom import read_sequence
-    from radar_odom.se2 import se2, to_xyyaw as se2_xyyaw
+    from radar_odom.se2 import se2
+    from radar_odom.se2 import to_xyyaw as se2_xyyaw
 
     seq = read_sequence(real / RADIATE)
     clouds = [scan_points(f.scan, opt) for f in seq]

@@ -103,16 +103,24 @@ def main(argv=None) -> int:
     results = {}
     for name in args.models:
         path = resolve(name)
-        results[name if not name.endswith(".onnx") else Path(name).stem] = {"oxford": oxford_pair(path, args.real), "radiate": radiate_run(path, args.real)}
-    lines = ["| model | Oxford x (gt {:.3f} m) | x error % | yaw error ° | RADIATE forward m (min–max) "
-             "| pairs in 1.8–3.5 m | 3-sweep consistency m (median / max) |".format(
-                 next(iter(results.values()))["oxford"]["gt_x_m"]),
-             "|---|---:|---:|---:|---:|---:|---:|"]
+        results[name if not name.endswith(".onnx") else Path(name).stem] = {
+            "oxford": oxford_pair(path, args.real),
+            "radiate": radiate_run(path, args.real),
+        }
+    lines = [
+        "| model | Oxford x (gt {:.3f} m) | x error % | yaw error ° | RADIATE forward m (min–max) "
+        "| pairs in 1.8–3.5 m | 3-sweep consistency m (median / max) |".format(
+            next(iter(results.values()))["oxford"]["gt_x_m"]
+        ),
+        "|---|---:|---:|---:|---:|---:|---:|",
+    ]
     for name, r in results.items():
         o, d = r["oxford"], r["radiate"]
-        lines.append(f"| {name} | {o['est_x_m']:.3f} | {o['x_error_percent']:.1f} | {o['yaw_error_deg']:.3f} "
-                     f"| {d['forward_min_m']:.2f}–{d['forward_max_m']:.2f} | {d['pairs_in_1.8_3.5_m']}/{d['pairs']} "
-                     f"| {d['consistency_median_m']:.3f} / {d['consistency_max_m']:.3f} |")
+        lines.append(
+            f"| {name} | {o['est_x_m']:.3f} | {o['x_error_percent']:.1f} | {o['yaw_error_deg']:.3f} "
+            f"| {d['forward_min_m']:.2f}–{d['forward_max_m']:.2f} | {d['pairs_in_1.8_3.5_m']}/{d['pairs']} "
+            f"| {d['consistency_median_m']:.3f} / {d['consistency_max_m']:.3f} |"
+        )
     table = "\n".join(lines)
     print(table)
     if args.json:

@@ -137,14 +137,16 @@ def markdown(results: dict, header: str) -> str:
     lines = [header, "",
              "| profile | search | yaws at full res | KITTI t % | KITTI r deg/m | mean step Δt m | mean step Δyaw ° "
              "| graph ms (median / p90) | step ms (p→C + graph) |", "|---|---|---|---|---|---|---|---|---|"]
-    for key, r in results.items():
+    for r in results.values():
         a = r.get("accuracy") or {}
         g = r.get("graph_ms") or {}
         lines.append(
             f"| {r['profile']} | {r['search']} | {r['band']} | {a.get('translation_percent', math.nan):.2f} "
             f"| {a.get('rotation_deg_per_m', math.nan):.4f} | {a.get('mean_step_translation_m', math.nan):.3f} "
-            f"| {a.get('mean_step_rotation_deg', math.nan):.3f} | {g.get('median', math.nan):.1f} / {g.get('p90', math.nan):.1f} "
-            f"| {r.get('step_ms', math.nan):.1f} |")
+            f"| {a.get('mean_step_rotation_deg', math.nan):.3f} "
+            f"| {g.get('median', math.nan):.1f} / {g.get('p90', math.nan):.1f} "
+            f"| {r.get('step_ms', math.nan):.1f} |"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -152,9 +154,9 @@ def plot(results: dict, path: Path, title: str) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     import textwrap
+
+    import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.8))
     colours = {"cart-0.8": "tab:blue", "cart-0.4": "tab:orange", "cart-0.2": "tab:green"}
@@ -166,8 +168,14 @@ def plot(results: dict, path: Path, title: str) -> None:
         marker = "s" if r["search"] == "exhaustive" else "o"
         for ax, key in zip(axes, ("translation_percent", "rotation_deg_per_m")):
             ax.scatter(r["step_ms"], r["accuracy"][key], color=c, marker=marker, s=40)
-            ax.annotate(r["search"], (r["step_ms"], r["accuracy"][key]), fontsize=6, alpha=0.8,
-                        xytext=(3, 3), textcoords="offset points")
+            ax.annotate(
+                r["search"],
+                (r["step_ms"], r["accuracy"][key]),
+                fontsize=6,
+                alpha=0.8,
+                xytext=(3, 3),
+                textcoords="offset points",
+            )
     for ax, lab in zip(axes, ("KITTI translational error (%)", "KITTI rotational error (deg/m)")):
         for name, ms in paper_ms.items():
             ax.axvline(ms, color=colours[name], ls="--", lw=0.8, alpha=0.6)
@@ -188,8 +196,12 @@ def plot(results: dict, path: Path, title: str) -> None:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--profiles", nargs="+", default=list(DEFAULT_SETTINGS))
-    ap.add_argument("--settings", nargs="*", default=None,
-                    help="fast settings for every profile (default: three per profile, see DEFAULT_SETTINGS)")
+    ap.add_argument(
+        "--settings",
+        nargs="*",
+        default=None,
+        help="fast settings for every profile (default: three per profile, see DEFAULT_SETTINGS)",
+    )
     ap.add_argument("--seeds", default="5000", help="held-out world seeds, >= 5000 (default: %(default)s)")
     ap.add_argument("--scenarios", default="urban,heavy_traffic,open,highway")
     ap.add_argument("--frames", type=int, default=240, help="sweeps per drive (default: %(default)s = 60 s)")
@@ -249,15 +261,20 @@ def main(argv=None) -> int:
                 onnx_path = export_for_speed(speed_model, setting, out / "models" / f"{name}-{label}.onnx")
                 r["graph_ms"] = graph_ms(onnx_path, drives, args.threads, args.steps)
                 r["step_ms"] = r["graph_ms"]["median"] + p2c
-            print(f"{name} {label}: {r['accuracy']['translation_percent']:.2f} %, "
-                  f"{r['accuracy']['rotation_deg_per_m']:.4f} deg/m"
-                  + (f", step {r['step_ms']:.1f} ms" if "step_ms" in r else ""), flush=True)
+            print(
+                f"{name} {label}: {r['accuracy']['translation_percent']:.2f} %, "
+                f"{r['accuracy']['rotation_deg_per_m']:.4f} deg/m"
+                + (f", step {r['step_ms']:.1f} ms" if "step_ms" in r else ""),
+                flush=True,
+            )
             json_path.write_text(json.dumps({"args": vars(args), "results": results}, indent=2))
     import os
 
-    header = (f"Drives: seeds {args.seeds} × scenarios {args.scenarios}, {args.frames} sweeps each; masks: {args.masks}; "
-              f"KITTI segments {args.lengths} m every 4 frames; {args.threads} threads; "
-              f"load average at the end {os.getloadavg()[0]:.2f}.")
+    header = (
+        f"Drives: seeds {args.seeds} × scenarios {args.scenarios}, {args.frames} sweeps each; masks: {args.masks}; "
+        f"KITTI segments {args.lengths} m every 4 frames; {args.threads} threads; "
+        f"load average at the end {os.getloadavg()[0]:.2f}."
+    )
     (out / "speed_accuracy.md").write_text(markdown(results, header))
     plot(results, out / "speed_accuracy.png", header)
     print(f"wrote {out / 'speed_accuracy.md'}, {out / 'speed_accuracy.png'}, {json_path}")

@@ -31,7 +31,9 @@ def main(argv=None) -> int:
     ap.add_argument("-o", "--output", default="qualitative.png", help="PNG to write (default: %(default)s)")
     ap.add_argument("--scenario", default="heavy_traffic", help="simulator scenario (default: %(default)s)")
     ap.add_argument("--seed", type=int, default=5100, help="held-out world seed, >= 5000 (default: %(default)s)")
-    ap.add_argument("--pair", type=int, default=40, help="which consecutive pair (k, k+1) to draw (default: %(default)s)")
+    ap.add_argument(
+        "--pair", type=int, default=40, help="which consecutive pair (k, k+1) to draw (default: %(default)s)"
+    )
     args = ap.parse_args(argv)
 
     import matplotlib
@@ -56,10 +58,21 @@ def main(argv=None) -> int:
             feats = model.sweep_features(cur)[0].numpy()
             volume = model.correlation_volume(prev, cur)
             pose, cov = model.pose_from_volume(volume)
-        rows.append(dict(path=path, meta=meta, profile=p, cur=cur[0].numpy(), mask=mask, feats=feats,
-                         label=drive.labels[args.pair + 1].astype(np.float32), volume=volume[0].numpy(),
-                         pose=pose[0].numpy().astype(np.float64), cov=cov[0].numpy().astype(np.float64),
-                         gt=drive.poses_rel[args.pair].astype(np.float64)))
+        rows.append(
+            dict(
+                path=path,
+                meta=meta,
+                profile=p,
+                cur=cur[0].numpy(),
+                mask=mask,
+                feats=feats,
+                label=drive.labels[args.pair + 1].astype(np.float32),
+                volume=volume[0].numpy(),
+                pose=pose[0].numpy().astype(np.float64),
+                cov=cov[0].numpy().astype(np.float64),
+                gt=drive.poses_rel[args.pair].astype(np.float64),
+            )
+        )
 
     fig, axes = plt.subplots(len(rows), 5, figsize=(25, 5.2 * len(rows)), squeeze=False)
     for ax, r in zip(axes, rows):
@@ -69,14 +82,17 @@ def main(argv=None) -> int:
         vmax = float(np.percentile(r["cur"], 99.8)) + 1e-3
         ax[0].imshow(r["cur"], cmap="gray", vmin=0, vmax=vmax, extent=extent)
         not_static = (r["label"] < 0.5) & (r["cur"] > np.percentile(r["cur"], 90))
-        ax[0].contour(np.flipud(not_static.astype(float)), levels=[0.5], colors="magenta", linewidths=0.6,
-                      extent=extent)
-        ax[0].set(title=f"{r['meta']['masking']} {p.name}: input (magenta: not static)",
-                  xlabel="y right (m)", ylabel="x forward (m)")
+        ax[0].contour(
+            np.flipud(not_static.astype(float)), levels=[0.5], colors="magenta", linewidths=0.6, extent=extent
+        )
+        ax[0].set(
+            title=f"{r['meta']['masking']} {p.name}: input (magenta: not static)",
+            xlabel="y right (m)",
+            ylabel="x forward (m)",
+        )
         ax[1].imshow(r["mask"], cmap="viridis", vmin=0, vmax=1, extent=extent)
         ax[1].set(title=f"predicted mask (mean {r['mask'].mean():.2f})", xlabel="y right (m)")
-        ax[2].imshow(r["feats"], cmap="gray", vmin=0, vmax=float(np.percentile(r["feats"], 99.8)) + 1e-6,
-                     extent=extent)
+        ax[2].imshow(r["feats"], cmap="gray", vmin=0, vmax=float(np.percentile(r["feats"], 99.8)) + 1e-6, extent=extent)
         ax[2].set(title="masked features M ⊙ Z", xlabel="y right (m)")
 
         # volume [K, N, N]: yaw k, then dx (rows, increasing), dy (cols) -- `candidate_poses`
@@ -96,13 +112,18 @@ def main(argv=None) -> int:
             ax[4].plot(e[:, 0], e[:, 1], "b" + style, label=f"{ks}σ")
         ax[4].plot(r["gt"][1], r["gt"][0], "c+", ms=14, mew=2, label="ground truth")
         ax[4].plot(*mean, "kx", ms=10, mew=2, label="estimate")
-        span = 1.1 * max(np.abs(ellipse_xy(np.zeros(2), cov_xy, 3)).max(), np.abs(mean - r["gt"][[1, 0]]).max(),
-                         p.resolution_m)
+        span = 1.1 * max(
+            np.abs(ellipse_xy(np.zeros(2), cov_xy, 3)).max(), np.abs(mean - r["gt"][[1, 0]]).max(), p.resolution_m
+        )
         ax[4].set_xlim(mean[0] - span, mean[0] + span)
         ax[4].set_ylim(mean[1] - span, mean[1] + span)
         sd = np.sqrt(np.maximum(np.diag(r["cov"]), 0))
-        ax[4].set(title=f"covariance: σx {sd[0]:.3f} m, σy {sd[1]:.3f} m, σyaw {np.degrees(sd[2]):.2f}°",
-                  xlabel="dy (m)", ylabel="dx (m)", aspect="equal")
+        ax[4].set(
+            title=f"covariance: σx {sd[0]:.3f} m, σy {sd[1]:.3f} m, σyaw {np.degrees(sd[2]):.2f}°",
+            xlabel="dy (m)",
+            ylabel="dx (m)",
+            aspect="equal",
+        )
         ax[4].legend(loc="lower right", fontsize=8)
     fig.suptitle(f"{args.scenario}, world seed {args.seed}, sweeps {args.pair}→{args.pair + 1}")
     fig.tight_layout()

@@ -10,7 +10,6 @@ import resource
 import struct
 import threading
 import time
-import warnings
 import zlib
 
 import numpy as np
@@ -26,9 +25,9 @@ from radar_odom.errors import (
     StreamError,
 )
 from radar_odom.formats import load_scan, read_sequence, write_scan
+from radar_odom.model_zoo import UnknownModelError, pretrained, pretrained_names
 from radar_odom.odometer import RadarOdometer, azimuth_coverage, sweep_problem, window_covariance
 from radar_odom.onnx_model import ModelInfo, OnnxModel, profile_digest
-from radar_odom.model_zoo import UnknownModelError, pretrained, pretrained_names
 from radar_odom.scan import RadarScan
 
 from fixtures import with_metadata
@@ -261,15 +260,31 @@ def test_metadata_schema_refuses_bad_json_missing_keys_and_wrong_types(shipped_m
         "sweep_geometry": (edited(shipped_meta, sweep_geometry='{"num_azimuths": 400}'), "lacks 'num_bins'"),
         "inputs": (edited(shipped_meta, inputs='"cart"'), "must be a JSON array"),
         "state_shape": (edited(shipped_meta, state_shape=None), "'radar_odom.state_shape' is missing"),
-        "width_px": (edited(shipped_meta, profile=profile_with(shipped_meta, width_px="128")), "'width_px' must be an integer"),
+        "width_px": (
+            edited(shipped_meta, profile=profile_with(shipped_meta, width_px="128")),
+            "'width_px' must be an integer",
+        ),
         "resolution_m": (edited(shipped_meta, profile=profile_with(shipped_meta, resolution_m=-0.8)), "resolution_m"),
-        "nan": (edited(shipped_meta, profile=profile_with(shipped_meta, beta_pose=float("nan"))), "'beta_pose' must be a finite"),
-        "rotations": (edited(shipped_meta, profile=profile_with(shipped_meta, rotation_step_rad=1e-12)), "yaw candidates"),
-        "geometry": (edited(shipped_meta, sweep_geometry=json.dumps(
-            {"num_azimuths": 400, "num_bins": 3768, "range_resolution_m": 0, "range_offset_m": 0})), "range_resolution_m"),
+        "nan": (
+            edited(shipped_meta, profile=profile_with(shipped_meta, beta_pose=float("nan"))),
+            "'beta_pose' must be a finite",
+        ),
+        "rotations": (
+            edited(shipped_meta, profile=profile_with(shipped_meta, rotation_step_rad=1e-12)),
+            "yaw candidates",
+        ),
+        "geometry": (
+            edited(
+                shipped_meta,
+                sweep_geometry=json.dumps(
+                    {"num_azimuths": 400, "num_bins": 3768, "range_resolution_m": 0, "range_offset_m": 0}
+                ),
+            ),
+            "range_resolution_m",
+        ),
         "form": (edited(shipped_meta, form="both"), "neither 'stream' nor 'pair'"),
     }
-    for name, (meta, match) in cases.items():
+    for _name, (meta, match) in cases.items():
         with pytest.raises(InvalidModelError, match=match):
             ModelInfo.from_metadata(meta, source="m.onnx")
         assert issubclass(InvalidModelError, ModelMismatchError)
@@ -297,16 +312,22 @@ def save_with_metadata(tmp_path, meta, name="m.onnx"):
 
 
 def test_model_files_with_bad_metadata_or_bytes_are_refused_on_load(tmp_path, shipped_meta):
-    bad_shape = save_with_metadata(tmp_path, edited(shipped_meta, input_shape="[1, 64, 64]", profile=profile_with(
-        shipped_meta, width_px=64)), "shape.onnx")
+    bad_shape = save_with_metadata(
+        tmp_path,
+        edited(shipped_meta, input_shape="[1, 64, 64]", profile=profile_with(shipped_meta, width_px=64)),
+        "shape.onnx",
+    )
     with pytest.raises(InvalidModelError, match="input_shape|graph input"):
         RadarOdometer(bad_shape)
     bad_state = save_with_metadata(tmp_path, edited(shipped_meta, state_shape="[1, 2, 128, 64]"), "state.onnx")
     with pytest.raises(InvalidModelError, match=r"'prev_state' has shape \[1, 2, 128, 65\].*\[1, 2, 128, 64\]"):
         RadarOdometer(bad_state)
     data = open(pretrained("cart-0.8"), "rb").read()
-    for name, blob in (("truncated.onnx", data[: len(data) // 3]), ("garbage.onnx", b"\x08\x07garbage" * 100),
-                       ("empty.onnx", b"")):
+    for name, blob in (
+        ("truncated.onnx", data[: len(data) // 3]),
+        ("garbage.onnx", b"\x08\x07garbage" * 100),
+        ("empty.onnx", b""),
+    ):
         (tmp_path / name).write_bytes(blob)
         with pytest.raises(InvalidModelError, match=f"{name}: onnxruntime cannot load"):
             RadarOdometer(tmp_path / name)
@@ -375,9 +396,13 @@ def test_from_arrays_refuses_what_it_used_to_coerce():
 
 
 def test_odometer_arguments_are_checked(odo_factory):
-    for kw, match in (({"max_gap_s": float("nan")}, "max_gap_s"), ({"max_gap_s": 0}, "max_gap_s"),
-                      ({"min_valid_fraction": 2.0}, "min_valid_fraction"), ({"on_gap": "skip"}, "on_gap"),
-                      ({"min_coverage": -1}, "min_coverage")):
+    for kw, match in (
+        ({"max_gap_s": float("nan")}, "max_gap_s"),
+        ({"max_gap_s": 0}, "max_gap_s"),
+        ({"min_valid_fraction": 2.0}, "min_valid_fraction"),
+        ({"on_gap": "skip"}, "on_gap"),
+        ({"min_coverage": -1}, "min_coverage"),
+    ):
         with pytest.raises(ConfigError, match=match):
             odo_factory(**kw)
     odo = odo_factory()
@@ -428,7 +453,6 @@ def test_a_nan_ground_truth_row_is_reported_by_line_and_costs_one_pair(tmp_path)
     ok = np.isfinite(seq.gt_relative).all(axis=1)
     assert ok.tolist() == [True, True, False, True, True]
     from radar_odom.run import evaluate, format_metrics
-
     from radar_odom.se2 import chain_relative
 
     est = chain_relative(np.tile([1.1, 0.0, 0.01], (5, 1)))
@@ -458,14 +482,17 @@ def test_zup_pose_files_drop_nan_and_conflicting_rows_by_line(tmp_path):
 
     p = tmp_path / "poses.csv"
     p.write_text("t,a,b\n1,0.0,0.0\n2,nan,0.0\n3,1.0,1.0\n3,2.0,2.0\n4,1.0,1.0\n4,1.0,1.0\n5,5.0,5.0\n")
-    with pytest.warns(GroundTruthWarning, match=r"NaN/inf values on line 3; different poses for the same time on lines 4 and 5"):
+    with pytest.warns(
+        GroundTruthWarning, match=r"NaN/inf values on line 3; different poses for the same time on lines 4 and 5"
+    ):
         _, stamps, values = read_numeric_csv(p)
     assert stamps.tolist() == [1, 4, 5] and np.isfinite(values).all()
 
 
 # --------------------------------------------------------------------------- 8. pretrained names
-@pytest.mark.parametrize("name", ["../../x", "../models/cart-0.4", "/etc/passwd", ".hidden", "cart-0.4/..",
-                                  "a\\..\\b", "", "cart 0.4"])
+@pytest.mark.parametrize(
+    "name", ["../../x", "../models/cart-0.4", "/etc/passwd", ".hidden", "cart-0.4/..", "a\\..\\b", "", "cart 0.4"]
+)
 def test_pretrained_takes_names_not_paths(name, tmp_path):
     (tmp_path / "models").mkdir()
     (tmp_path / "models" / "cart-0.4.onnx").write_bytes(b"x")
@@ -518,9 +545,28 @@ def test_soak_benchmark_runs(tmp_path):
     if "cart-0.8" not in pretrained_names():
         pytest.skip("the shipped cart-0.8 model is not installed")
     script = Path(__file__).resolve().parents[1] / "benchmarks" / "soak.py"
-    out = subprocess.run([sys.executable, str(script), "--steps", "20", "--pool", "2", "--model", "cart-0.8",
-                          "--threads", "1", "--bad-every", "5", "--quiet", "--json", str(tmp_path / "s.json")],
-                         capture_output=True, text=True, timeout=300)
+    out = subprocess.run(
+        [
+            sys.executable,
+            str(script),
+            "--steps",
+            "20",
+            "--pool",
+            "2",
+            "--model",
+            "cart-0.8",
+            "--threads",
+            "1",
+            "--bad-every",
+            "5",
+            "--quiet",
+            "--json",
+            str(tmp_path / "s.json"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert out.returncode == 0, out.stderr
     assert "RSS growth after step" in out.stdout and "p99 latency" in out.stdout
     r = json.loads((tmp_path / "s.json").read_text())

@@ -225,7 +225,8 @@ def test_wrong_width_and_height(tmp_path):
 def test_non_increasing_encoder_counts(tmp_path):
     ts, counts, power = small_sweep()
     counts[5] = counts[4]
-    raises(save_png(tmp_path / "s.png", oxford_image(ts, counts, [255] * 8, power)), "encoder counts must increase.*row 5")
+    path = save_png(tmp_path / "s.png", oxford_image(ts, counts, [255] * 8, power))
+    raises(path, "encoder counts must increase.*row 5")
     counts[5] = 6000  # beyond one turn
     counts[6:] = [6014, 6028]
     raises(save_png(tmp_path / "t.png", oxford_image(ts, counts, [255] * 8, power)), "not below 5600")
@@ -233,7 +234,9 @@ def test_non_increasing_encoder_counts(tmp_path):
 
 def test_every_row_invalid(tmp_path):
     ts, counts, power = small_sweep()
-    raises(save_png(tmp_path / "s.png", oxford_image(ts, counts, [0] * 8, power)), "every azimuth row is marked invalid")
+    raises(
+        save_png(tmp_path / "s.png", oxford_image(ts, counts, [0] * 8, power)), "every azimuth row is marked invalid"
+    )
 
 
 def test_bad_arrays_from_a_driver():

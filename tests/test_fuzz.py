@@ -2,14 +2,15 @@
 
 Every entry point that takes outside data — the four sweep readers (random bytes, mutated PNGs,
 random images), recording folders (any file names), `RadarScan.from_arrays`, the ONNX metadata
-schema, the ground-truth and time files, and `RadarOdometer.step` — either succeeds or raises a `RadarOdomError` subclass; never a
-raw numpy / OpenCV / onnxruntime exception, and a returned estimate is always finite.
+schema, the ground-truth and time files, and `RadarOdometer.step` — either succeeds or raises a
+`RadarOdomError` subclass; never a raw numpy / OpenCV / onnxruntime exception, and a returned estimate is always finite.
 
 About 11,100 generated inputs in all (the issue asks for ≥ 10,000 within 60 s in CI). The
 example counts scale with ``RADAR_ODOM_FUZZ_SCALE`` (e.g. 0.1 for a quick look, 10 nightly).
 No example database is written (``database=None``): runs are reproducible from the seed
 hypothesis prints on failure.
 """
+
 import atexit
 import json
 import math
@@ -28,9 +29,9 @@ from hypothesis.extra import numpy as hnp
 
 from radar_odom.errors import RadarOdomError
 from radar_odom.formats import load_scan, write_scan
+from radar_odom.model_zoo import pretrained, pretrained_names
 from radar_odom.odometer import RadarOdometer, model_region_m, window_covariance
 from radar_odom.onnx_model import ModelInfo, OnnxModel
-from radar_odom.model_zoo import pretrained, pretrained_names
 from radar_odom.scan import RadarScan
 
 SCALE = float(os.environ.get("RADAR_ODOM_FUZZ_SCALE", "1"))
@@ -39,9 +40,13 @@ FORMATS = ("oxford", "boreas", "mulran", "radiate")
 
 
 def fuzz(n: int):
-    return settings(max_examples=max(1, int(n * SCALE)), deadline=None, database=None, print_blob=True,
-                    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,
-                                           HealthCheck.filter_too_much])
+    return settings(
+        max_examples=max(1, int(n * SCALE)),
+        deadline=None,
+        database=None,
+        print_blob=True,
+        suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.filter_too_much],
+    )
 
 
 def typed(fn, *args, **kwargs):
@@ -69,7 +74,8 @@ for _p in _PATHS.values():
     _p.parent.mkdir(parents=True, exist_ok=True)
 (_ROOT / "bo" / "applanix").mkdir(exist_ok=True)
 (_ROOT / "ra" / "Navtech_Polar.txt").write_text(
-    "Frame: 000001 Time: 1574859771.744660272\nFrame: 000002 Time: 1574859772.000000000\n")
+    "Frame: 000001 Time: 1574859771.744660272\nFrame: 000002 Time: 1574859772.000000000\n"
+)
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
@@ -90,8 +96,9 @@ def read(fmt: str, data: bytes, **kw):
 def base_pngs():
     rng = np.random.default_rng(0)
     a, b = 8, 24
-    scan = RadarScan.from_arrays(T0_US + np.arange(a) * 625, np.arange(a) * 700 * 2 * np.pi / 5600,
-                                 rng.integers(0, 256, (a, b), dtype=np.uint8))
+    scan = RadarScan.from_arrays(
+        T0_US + np.arange(a) * 625, np.arange(a) * 700 * 2 * np.pi / 5600, rng.integers(0, 256, (a, b), dtype=np.uint8)
+    )
     oxford = write_scan(_ROOT / "base" / "oxford.png", scan).read_bytes()
     ok, raw = cv2.imencode(".png", rng.integers(0, 256, (24, 8), dtype=np.uint8))  # RADIATE-like, 8 × 24
     return [oxford, raw.tobytes()]
@@ -109,8 +116,9 @@ def test_readers_take_random_bytes(fmt, data):
     read(fmt, data)
 
 
-mutation = st.tuples(st.sampled_from(["flip", "cut", "insert", "set32"]), st.integers(0, 4000),
-                     st.integers(0, 2**32 - 1))
+mutation = st.tuples(
+    st.sampled_from(["flip", "cut", "insert", "set32"]), st.integers(0, 4000), st.integers(0, 2**32 - 1)
+)
 
 
 @fuzz(1500)
@@ -128,13 +136,17 @@ def test_readers_take_mutated_pngs(fmt, which, ops):
         elif op == "insert":
             data[pos:pos] = bytes([value % 256]) * (1 + value % 7)
         else:  # overwrite 4 bytes (e.g. IHDR width/height at 16..23) with a 32-bit value
-            data[pos:pos + 4] = value.to_bytes(4, "big")
+            data[pos : pos + 4] = value.to_bytes(4, "big")
     read(fmt, bytes(data), **({"num_azimuths": 8, "num_bins": 24} if fmt == "radiate" else {}))
 
 
 @fuzz(1500)
-@given(formats, hnp.arrays(np.uint8, hnp.array_shapes(min_dims=2, max_dims=2, min_side=1, max_side=40)),
-       st.sampled_from([None, 0, 255]), st.booleans())
+@given(
+    formats,
+    hnp.arrays(np.uint8, hnp.array_shapes(min_dims=2, max_dims=2, min_side=1, max_side=40)),
+    st.sampled_from([None, 0, 255]),
+    st.booleans(),
+)
 def test_readers_take_random_images(fmt, img, valid_column, sized):
     if valid_column is not None and img.shape[1] > 10:
         img = img.copy()
@@ -143,21 +155,32 @@ def test_readers_take_random_images(fmt, img, valid_column, sized):
     assert ok
     kw = {}
     if sized:  # the size the reader is told to expect: RADIATE is [bins, azimuths], others rows = azimuths
-        kw = ({"num_azimuths": img.shape[1], "num_bins": img.shape[0]} if fmt in ("radiate", "mulran")
-              else {"num_azimuths": img.shape[0], "num_bins": max(img.shape[1] - 11, 1)})
+        kw = (
+            {"num_azimuths": img.shape[1], "num_bins": img.shape[0]}
+            if fmt in ("radiate", "mulran")
+            else {"num_azimuths": img.shape[0], "num_bins": max(img.shape[1] - 11, 1)}
+        )
     read(fmt, raw.tobytes(), **kw)
 
 
 # --------------------------------------------------------------------------- from_arrays
-anything = st.one_of(st.none(), st.booleans(), st.integers(-2**70, 2**70), st.floats(), st.text(max_size=4),
-                     st.lists(st.floats(), max_size=3))
-dtypes = st.sampled_from([np.uint8, np.float32, np.float64, np.int64, np.uint64, np.bool_, np.float16,
-                          np.int8, np.complex64, "U2"])
+anything = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.integers(-(2**70), 2**70),
+    st.floats(),
+    st.text(max_size=4),
+    st.lists(st.floats(), max_size=3),
+)
+dtypes = st.sampled_from(
+    [np.uint8, np.float32, np.float64, np.int64, np.uint64, np.bool_, np.float16, np.int8, np.complex64, "U2"]
+)
 
 
 def any_array(max_side=6):
-    return dtypes.flatmap(lambda dt: hnp.arrays(dt, hnp.array_shapes(min_dims=0, max_dims=3, min_side=0,
-                                                                     max_side=max_side)))
+    return dtypes.flatmap(
+        lambda dt: hnp.arrays(dt, hnp.array_shapes(min_dims=0, max_dims=3, min_side=0, max_side=max_side))
+    )
 
 
 @st.composite
@@ -165,7 +188,7 @@ def near_valid_sweep(draw):
     """Arrays that are mostly right, with a few values pushed to the edges."""
     a, b = draw(st.integers(1, 6)), draw(st.integers(1, 6))
     edge = st.sampled_from([0.0, -0.0, 1.0, 1e-300, 2 * math.pi, math.nan, math.inf, -1.0, 1e25, 2.0**63])
-    ts = np.sort(np.array(draw(st.lists(st.integers(-2**63, 2**63 - 1), min_size=a, max_size=a)), dtype=np.int64))
+    ts = np.sort(np.array(draw(st.lists(st.integers(-(2**63), 2**63 - 1), min_size=a, max_size=a)), dtype=np.int64))
     if draw(st.booleans()):
         ts = ts.astype(np.float64)
         ts[draw(st.integers(0, a - 1))] = draw(edge)
@@ -182,16 +205,23 @@ def near_valid_sweep(draw):
 @fuzz(1500)
 @given(any_array(), any_array(), any_array(), st.one_of(st.none(), any_array()), anything, anything, anything)
 def test_from_arrays_takes_anything(ts, az, power, valid, res, offset, counts):
-    typed(RadarScan.from_arrays, ts, az, power, valid=valid, range_resolution_m=res, range_offset_m=offset,
-          encoder_counts=counts)
+    typed(
+        RadarScan.from_arrays,
+        ts,
+        az,
+        power,
+        valid=valid,
+        range_resolution_m=res,
+        range_offset_m=offset,
+        encoder_counts=counts,
+    )
 
 
 @fuzz(1500)
 @given(near_valid_sweep(), st.one_of(st.floats(), st.integers(-5, 5)), st.floats())
 def test_from_arrays_near_valid(sweep, res, offset):
     ts, az, power, valid = sweep
-    scan = typed(RadarScan.from_arrays, ts, az, power, valid=valid, range_resolution_m=res,
-                 range_offset_m=offset)
+    scan = typed(RadarScan.from_arrays, ts, az, power, valid=valid, range_resolution_m=res, range_offset_m=offset)
     if scan is not None:
         assert scan.range_resolution_m > 0 and math.isfinite(scan.range_offset_m)
         assert scan.timestamps_us.dtype == np.int64 and np.all(np.isfinite(scan.power))
@@ -208,7 +238,7 @@ def shipped_metadata():
 
 META = shipped_metadata()
 json_values = st.recursive(
-    st.one_of(st.none(), st.booleans(), st.integers(-2**40, 2**40), st.floats(), st.text(max_size=6)),
+    st.one_of(st.none(), st.booleans(), st.integers(-(2**40), 2**40), st.floats(), st.text(max_size=6)),
     lambda inner: st.one_of(st.lists(inner, max_size=4), st.dictionaries(st.text(max_size=6), inner, max_size=4)),
     max_leaves=8,
 )
@@ -216,8 +246,18 @@ meta_keys = st.sampled_from(sorted(META) if META else ["radar_odom.profile"])
 
 
 @fuzz(1500)
-@given(st.lists(st.tuples(st.sampled_from(["delete", "text", "json", "field", "field_delete"]), meta_keys,
-                          st.text(max_size=20), json_values), min_size=1, max_size=3))
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from(["delete", "text", "json", "field", "field_delete"]),
+            meta_keys,
+            st.text(max_size=20),
+            json_values,
+        ),
+        min_size=1,
+        max_size=3,
+    )
+)
 def test_metadata_schema_takes_any_edit(edits):
     if META is None:
         pytest.skip("no shipped model to take metadata from")
@@ -271,8 +311,9 @@ def test_ground_truth_and_time_files_take_any_text(text, kind):
         typed(parse_radiate_times, text, "fuzz.txt")
 
 
-file_names = st.text(alphabet=st.characters(blacklist_characters="/\x00", blacklist_categories=("Cs",)),
-                     min_size=1, max_size=12).filter(lambda n: n not in (".", ".."))
+file_names = st.text(
+    alphabet=st.characters(blacklist_characters="/\x00", blacklist_categories=("Cs",)), min_size=1, max_size=12
+).filter(lambda n: n not in (".", ".."))
 
 
 @fuzz(300)
@@ -328,7 +369,7 @@ def stream_sweep(draw):
         power = (rng.random((a, b)) > 0.999).astype(np.float32)
     else:
         power = cv2.GaussianBlur(rng.random((a, b)).astype(np.float32), (0, 0), 3.0)
-        power[a // 2:] = 0
+        power[a // 2 :] = 0
     span = draw(st.sampled_from([2 * math.pi, math.pi, 0.1]))
     az = np.arange(a) * (span / a)
     valid = None if draw(st.booleans()) else rng.random(a) > draw(st.floats(0, 1))

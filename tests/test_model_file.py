@@ -14,8 +14,8 @@ from radar_odom.model_file import (
     check_signature,
     expected_state_shape,
 )
-from radar_odom.onnx_model import OnnxModel
 from radar_odom.model_zoo import pretrained, pretrained_names
+from radar_odom.onnx_model import OnnxModel
 
 
 @pytest.fixture(scope="module")

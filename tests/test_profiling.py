@@ -8,10 +8,10 @@ import sys
 import numpy as np
 import pytest
 
-from radar_odom.profiles import GridProfile
 from radar_odom.latency import markdown_report
 from radar_odom.latency.reference import FFTReference, _rotation_matrix, state_to_image, state_to_spectrum
 from radar_odom.latency.stats import latency_summary, operator_profile
+from radar_odom.profiles import GridProfile
 
 
 def small_profile(**kw):
@@ -136,21 +136,68 @@ def fake_report():
     stages = {s: {"median": m, "p90": m + 1, "p99": m + 2, "mean": m, "min": m, "n": 200}
               for s, m in (("png_decode", 9.0), ("sweep_parse", 2.0), ("polar_to_cartesian", 1.0),
                            ("graph", 8.0), ("step", 9.0), ("full", 20.0))}
-    return {"command": "radar-odom profile", "machine": {"cpu": "Test CPU", "logical_cores": 2, "physical_cores": 2,
-                                                          "onnxruntime": "1.0", "numpy": "2.0", "python": "3.11",
-                                                          "threads": 2, "load_average": [0.5, 0.5, 0.5]},
-            "settings": {"steps": 200, "warmup": 20, "threads": 2, "reference_steps": 30, "operator_steps": 50,
-                         "distinct_sweeps": 24, "sweeps": "simulated"},
-            "models": [{"name": "cart-0.4", "path": "m.onnx", "untrained": True,
-                        "profile": {"name": "cart-0.4", "resolution_m": 0.4, "width_px": 256,
-                                    "rotation_range_rad": math.pi / 12, "rotation_step_rad": math.pi / 360},
-                        "search": {"coarse_factor": 4, "coarse_stride": 2, "band_rotations": 3, "rotation": "polar"},
-                        "stages": stages, "peak_rss_mb": 123.0, "masker": {"median": 3.0},
-                        "operators": {"MatMul": {"median": 4.0, "p90": 5.0, "p99": 6.0, "mean": 4.0, "share": 0.6, "nodes": 12}},
-                        "reference": {"exhaustive": {"time": {"median": 80.0}, "pose_diff_median": {"x_m": 0.01, "y_m": 0.0, "yaw_rad": 0.001}},
-                                      "same_search": {"time": {"median": 10.0}, "pose_diff_median": {"x_m": 0.0, "y_m": 0.0, "yaw_rad": 0.0}}}}],
-            "rss_stream": {"model": "cart-0.4", "steps": 1000, "every": 50, "samples": [[1, 100.0], [50, 110.0], [1000, 111.0]],
-                           "peak_mb": 112.0, "growth_mb": 1.0, "growth_from_step": 100}}
+    return {
+        "command": "radar-odom profile",
+        "machine": {
+            "cpu": "Test CPU",
+            "logical_cores": 2,
+            "physical_cores": 2,
+            "onnxruntime": "1.0",
+            "numpy": "2.0",
+            "python": "3.11",
+            "threads": 2,
+            "load_average": [0.5, 0.5, 0.5],
+        },
+        "settings": {
+            "steps": 200,
+            "warmup": 20,
+            "threads": 2,
+            "reference_steps": 30,
+            "operator_steps": 50,
+            "distinct_sweeps": 24,
+            "sweeps": "simulated",
+        },
+        "models": [
+            {
+                "name": "cart-0.4",
+                "path": "m.onnx",
+                "untrained": True,
+                "profile": {
+                    "name": "cart-0.4",
+                    "resolution_m": 0.4,
+                    "width_px": 256,
+                    "rotation_range_rad": math.pi / 12,
+                    "rotation_step_rad": math.pi / 360,
+                },
+                "search": {"coarse_factor": 4, "coarse_stride": 2, "band_rotations": 3, "rotation": "polar"},
+                "stages": stages,
+                "peak_rss_mb": 123.0,
+                "masker": {"median": 3.0},
+                "operators": {
+                    "MatMul": {"median": 4.0, "p90": 5.0, "p99": 6.0, "mean": 4.0, "share": 0.6, "nodes": 12}
+                },
+                "reference": {
+                    "exhaustive": {
+                        "time": {"median": 80.0},
+                        "pose_diff_median": {"x_m": 0.01, "y_m": 0.0, "yaw_rad": 0.001},
+                    },
+                    "same_search": {
+                        "time": {"median": 10.0},
+                        "pose_diff_median": {"x_m": 0.0, "y_m": 0.0, "yaw_rad": 0.0},
+                    },
+                },
+            }
+        ],
+        "rss_stream": {
+            "model": "cart-0.4",
+            "steps": 1000,
+            "every": 50,
+            "samples": [[1, 100.0], [50, 110.0], [1000, 111.0]],
+            "peak_mb": 112.0,
+            "growth_mb": 1.0,
+            "growth_from_step": 100,
+        },
+    }
 
 
 def test_markdown_report_holds_the_measured_numbers():
@@ -188,10 +235,32 @@ def test_profile_command_end_to_end(tiny_model, tmp_path, capsys):
     from radar_odom.cli import main
 
     out = tmp_path / "prof"
-    assert main(["profile", "--models", str(tiny_model), "--profiles", "--steps", "6", "--warmup", "1",
-                 "--reference-steps", "2", "--operator-steps", "2", "--rss-steps", "0", "--file-sweeps", "6",
-                 "-o", str(out),
-                 "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "profile",
+                "--models",
+                str(tiny_model),
+                "--profiles",
+                "--steps",
+                "6",
+                "--warmup",
+                "1",
+                "--reference-steps",
+                "2",
+                "--operator-steps",
+                "2",
+                "--rss-steps",
+                "0",
+                "--file-sweeps",
+                "6",
+                "-o",
+                str(out),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     report = json.loads((out / "profile.json").read_text())
     (m,) = report["models"]
     assert m["stages"]["graph"]["n"] == 6 and m["stages"]["step"]["median"] >= m["stages"]["graph"]["median"]

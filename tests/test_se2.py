@@ -4,7 +4,8 @@ import pytest
 from radar_odom import se2 as S
 
 hyp = pytest.importorskip("hypothesis")
-from hypothesis import given, strategies as st  # noqa: E402
+from hypothesis import given  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
 
 finite = st.floats(-100, 100, allow_nan=False)
 angle = st.floats(-np.pi, np.pi, allow_nan=False)

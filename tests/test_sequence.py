@@ -127,7 +127,8 @@ def zup_drive(start_xy, heading):
     for dx, dy_right, dyaw_cw in EXPECTED_REL:
         x, y, h = poses[-1]
         dy_left = -dy_right  # z-up body frame: y points left
-        poses.append((x + math.cos(h) * dx - math.sin(h) * dy_left, y + math.sin(h) * dx + math.cos(h) * dy_left, h - dyaw_cw))
+        c, s = math.cos(h), math.sin(h)
+        poses.append((x + c * dx - s * dy_left, y + s * dx + c * dy_left, h - dyaw_cw))
     return np.array(poses)
 
 
@@ -136,9 +137,14 @@ def test_boreas_enu_poses_become_oxford_relatives(tmp_path):
     names = 1606417230036848 + np.arange(6) * 250_000  # mid-sweep times
     for k, t in enumerate(names):
         write_scan(tmp_path / "radar" / f"{t}.png", sweep(int(t) - 2187, seed=k))
-    lines = ["GPSTime,easting,northing,altitude,vel_east,vel_north,vel_up,roll,pitch,heading,angvel_z,angvel_y,angvel_x"]
+    lines = [
+        "GPSTime,easting,northing,altitude,vel_east,vel_north,vel_up,roll,pitch,heading,angvel_z,angvel_y,angvel_x"
+    ]
     for t, (e, n, h) in zip(names, poses):
-        lines.append(f"{t},{float(e)!r},{float(n)!r},{85.0 + 0.1 * (t - names[0]) / 250_000},10.0,10.0,0.0,0.0,0.0,{float(h)!r},0.0,0.0,0.0")
+        lines.append(
+            f"{t},{float(e)!r},{float(n)!r},{85.0 + 0.1 * (t - names[0]) / 250_000},"
+            f"10.0,10.0,0.0,0.0,0.0,{float(h)!r},0.0,0.0,0.0"
+        )
     (tmp_path / "applanix").mkdir()
     (tmp_path / "applanix" / "radar_poses.csv").write_text("\n".join(lines) + "\n")
     seq = read_sequence(tmp_path)
@@ -175,9 +181,7 @@ def test_mulran_poses_matched_at_mid_sweep_become_oxford_relatives(tmp_path, sub
         cv2.imwrite(str(folder / f"{t}.png"), np.full((32, 16), k, np.uint8))
     mid_ns = ends_ns - 125_000_000 + 2_000_000  # pose stamps a little off the mid times
     decoys = zup_drive((0.0, 0.0), 0.0)  # wrong poses at the END times: must not be picked
-    write_mulran_poses(
-        tmp_path / "global_pose.csv", np.concatenate([ends_ns, mid_ns]), np.concatenate([decoys, poses])
-    )
+    write_mulran_poses(tmp_path / "global_pose.csv", np.concatenate([ends_ns, mid_ns]), np.concatenate([decoys, poses]))
     seq = read_sequence(tmp_path)
     assert seq.format == "mulran"
     np.testing.assert_array_equal(seq.timestamps_us, ends_ns // 1000)

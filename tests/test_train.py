@@ -1,7 +1,6 @@
 """Training, baselines, checkpoints, augmentation, calibration and evaluation (export side)."""
 import json
 import math
-import os
 
 import numpy as np
 import pytest
@@ -12,13 +11,23 @@ from radar_odom.profiles import GridProfile  # noqa: E402
 from radar_odom_export import calibrate as cal  # noqa: E402
 from radar_odom_export import data as D  # noqa: E402
 from radar_odom_export.checkpoint import (  # noqa: E402
-    FORMAT, CheckpointError, load_checkpoint, read_checkpoint_dict, save_checkpoint,
+    FORMAT,
+    CheckpointError,
+    load_checkpoint,
+    read_checkpoint_dict,
+    save_checkpoint,
 )
 from radar_odom_export.correlation import candidate_poses  # noqa: E402
 from radar_odom_export.model import MaskedCorrelator  # noqa: E402
 from radar_odom_export.softargmax import hard_argmax  # noqa: E402
 from radar_odom_export.train import (  # noqa: E402
-    Objective, TrainConfig, log_path, plot_path, pose_loss, state_path, train,
+    Objective,
+    TrainConfig,
+    log_path,
+    plot_path,
+    pose_loss,
+    state_path,
+    train,
 )
 
 pytestmark = pytest.mark.torch
@@ -223,7 +232,8 @@ def test_supervised_mask_training_needs_labels(tmp_path, toy):
 def test_checkpoint_round_trip_with_weights_only(tmp_path):
     torch.manual_seed(1)
     model = MaskedCorrelator(TINY)
-    path = save_checkpoint(tmp_path / "m.pt", model, "learned", train={"seeds": np.arange(3), "wall_s": np.float32(2.5)})
+    train = {"seeds": np.arange(3), "wall_s": np.float32(2.5)}
+    path = save_checkpoint(tmp_path / "m.pt", model, "learned", train=train)
     raw = torch.load(path, weights_only=True)
     assert raw["train"] == {"seeds": [0, 1, 2], "wall_s": 2.5}
     assert set(raw["state_dict"]) == set(dict(model.named_parameters()))  # weights only, no grids
@@ -291,14 +301,18 @@ def _render_pair(profile, pose, seed=0, n=120):
 def _argmax_pose(prev, cur, profile=FINE):
     model = MaskedCorrelator(profile, masking="raw")
     with torch.no_grad():
-        v = model.correlation_volume(torch.from_numpy(np.ascontiguousarray(prev))[None],
-                                     torch.from_numpy(np.ascontiguousarray(cur))[None])
+        v = model.correlation_volume(
+            torch.from_numpy(np.ascontiguousarray(prev))[None], torch.from_numpy(np.ascontiguousarray(cur))[None]
+        )
     return hard_argmax(v, model.candidates)[0].numpy()
 
 
 def _close(est, want, profile=FINE):
-    return (abs(est[0] - want[0]) <= 0.75 * profile.resolution_m and abs(est[1] - want[1]) <= 0.75 * profile.resolution_m
-            and abs(est[2] - want[2]) <= 0.75 * profile.rotation_step_rad)
+    return (
+        abs(est[0] - want[0]) <= 0.75 * profile.resolution_m
+        and abs(est[1] - want[1]) <= 0.75 * profile.resolution_m
+        and abs(est[2] - want[2]) <= 0.75 * profile.rotation_step_rad
+    )
 
 
 # yaws are 0 or >= 2 rotation steps: a yaw one step from 0 ties with the yaw-0 slice, the only
@@ -316,9 +330,11 @@ def test_raw_argmax_recovers_the_rendered_pose(pose):
 def test_mirror_swap_rotate_keep_labels_exact(pose):
     prev, cur = _render_pair(FINE, pose, seed=1)
     pose = np.array(pose, np.float32)
-    for name, aug in (("mirror", lambda a, b, p: D.mirror_pair(a, b, p)),
-                      ("swap", lambda a, b, p: D.swap_pair(a, b, p)),
-                      ("rotate", lambda a, b, p: D.rotate_pair(a, b, p, 0.6))):
+    for name, aug in (
+        ("mirror", lambda a, b, p: D.mirror_pair(a, b, p)),
+        ("swap", lambda a, b, p: D.swap_pair(a, b, p)),
+        ("rotate", lambda a, b, p: D.rotate_pair(a, b, p, 0.6)),
+    ):
         a2, b2, p2, _ = aug(prev, cur, pose)
         est = _argmax_pose(a2, b2)
         assert _close(est, p2), (name, est, p2)
@@ -426,8 +442,15 @@ def test_calibrate_beta_finds_the_known_temperature():
 
 def test_calibration_on_gaussian_volumes_moves_mean_d2_into_the_band():
     """Volumes whose softmax at β is a Gaussian of covariance S/β, errors drawn from S/β*."""
-    prof = GridProfile("cal", resolution_m=1.0, width_px=64, max_translation_m=10, rotation_range_rad=0.25,
-                       rotation_step_rad=0.025, unet_depth=3)
+    prof = GridProfile(
+        "cal",
+        resolution_m=1.0,
+        width_px=64,
+        max_translation_m=10,
+        rotation_range_rad=0.25,
+        rotation_step_rad=0.025,
+        unet_depth=3,
+    )
     cand = candidate_poses(prof, torch.float64)
     rng = np.random.default_rng(0)
     s = np.diag([2.0**2, 1.5**2, 0.05**2])  # spread of the unit-temperature Gaussian
@@ -542,8 +565,20 @@ def test_cli_trains_on_recordings_holding_out_the_last_folder(recordings, tmp_pa
     prof = tmp_path / "tiny.json"
     prof.write_text(json.dumps(asdict(TINY)))
     out = tmp_path / "cli.pt"
-    argv = ["train", *map(str, recordings), "-o", str(out), "--profile", str(prof), "--epochs", "1",
-            "--batch", "2", "--threads", "1"]
+    argv = [
+        "train",
+        *map(str, recordings),
+        "-o",
+        str(out),
+        "--profile",
+        str(prof),
+        "--epochs",
+        "1",
+        "--batch",
+        "2",
+        "--threads",
+        "1",
+    ]
     assert main(argv) == 0
     _, meta = load_checkpoint(out)
     assert meta["train"]["train_drives"] == ["seq41"] and meta["train"]["val_drives"] == ["seq42"]
@@ -564,22 +599,58 @@ def test_cli_writes_a_cfar_checkpoint_without_training(recordings, tmp_path, mon
     prof = tmp_path / "tiny.json"
     prof.write_text(json.dumps(asdict(TINY.with_(input_norm="floor-scale"))))
     out = tmp_path / "cfar.pt"
-    assert main(["train", *map(str, recordings), "-o", str(out), "--profile", str(prof), "--masking", "cfar",
-                 "--batch", "2", "--threads", "1"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                *map(str, recordings),
+                "-o",
+                str(out),
+                "--profile",
+                str(prof),
+                "--masking",
+                "cfar",
+                "--batch",
+                "2",
+                "--threads",
+                "1",
+            ]
+        )
+        == 0
+    )
     model, meta = load_checkpoint(out)
     assert meta["masking"] == "cfar" and meta["train"]["steps"] == 0 and model.cfar is not None
     assert meta["profile"].input_norm == "floor-scale"
     # a profile without the normalisation is refused: CFAR thresholds are in normalised units
     prof.write_text(json.dumps(asdict(TINY)))
-    assert main(["train", *map(str, recordings), "-o", str(tmp_path / "x.pt"), "--profile", str(prof),
-                 "--masking", "cfar", "--batch", "2", "--threads", "1"]) == 1
+    assert (
+        main(
+            [
+                "train",
+                *map(str, recordings),
+                "-o",
+                str(tmp_path / "x.pt"),
+                "--profile",
+                str(prof),
+                "--masking",
+                "cfar",
+                "--batch",
+                "2",
+                "--threads",
+                "1",
+            ]
+        )
+        == 1
+    )
 
 
 def test_cli_commands_need_torch_only_when_run():
     import subprocess
     import sys
 
-    code = ("import sys, radar_odom.cli as c; p = c.build_parser(); "
-            "p.parse_args(['train', '-o', 'x.pt']); p.parse_args(['calibrate', 'x.pt']); "
-            "assert not [m for m in sys.modules if m.split('.')[0] == 'torch']")
+    code = (
+        "import sys, radar_odom.cli as c; p = c.build_parser(); "
+        "p.parse_args(['train', '-o', 'x.pt']); p.parse_args(['calibrate', 'x.pt']); "
+        "assert not [m for m in sys.modules if m.split('.')[0] == 'torch']"
+    )
     subprocess.run([sys.executable, "-c", code], check=True)

@@ -18,8 +18,8 @@ The correlation volumes are computed once per pair; every β then costs only a s
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Callable, Sequence
 
 import numpy as np
 import torch
@@ -115,7 +115,9 @@ class D2Curve:
         self.err = pose_errors(gt_xyyaw, self.mean)
 
     def covariances(self, beta: float) -> np.ndarray:
-        covs = [weighted_covariance(candidate_weights(v.double(), beta), self.flat) for v in self.volumes.split(self.chunk)]
+        covs = [
+            weighted_covariance(candidate_weights(v.double(), beta), self.flat) for v in self.volumes.split(self.chunk)
+        ]
         return torch.cat(covs).numpy() + self.floor
 
     def d2(self, beta: float) -> np.ndarray:
@@ -126,9 +128,16 @@ class D2Curve:
 
 
 # ----------------------------------------------------------------------------- search
-def calibrate_beta(mean_d2: Callable[[float], float], beta0: float, band=BAND, target: float = TARGET_D2,
-                   decades: tuple[float, float] = (-4.0, 2.0), per_decade: int = 2,
-                   max_decades: float = 12.0, max_bisections: int = 60) -> CalibrationResult:
+def calibrate_beta(
+    mean_d2: Callable[[float], float],
+    beta0: float,
+    band=BAND,
+    target: float = TARGET_D2,
+    decades: tuple[float, float] = (-4.0, 2.0),
+    per_decade: int = 2,
+    max_decades: float = 12.0,
+    max_bisections: int = 60,
+) -> CalibrationResult:
     """Find β with ``mean_d2(β)`` in ``band`` (aiming at ``target``), assuming it grows with β.
 
     1. a log-spaced sweep ``beta0·10^decades`` (``per_decade`` points per decade), widened a
@@ -192,8 +201,12 @@ def calibrate_beta(mean_d2: Callable[[float], float], beta0: float, band=BAND, t
             f"closest mean d² is {best[1]:.3g} at β={best[0]:.4g}, outside {band} (d̄² jumps across 3: "
             f"too few pairs?):\n{format_table(sorted(table.items()))}"
         )
-    return CalibrationResult(beta_cov=float(best[0]), mean_d2=float(best[1]),
-                             table=sorted((float(b), float(v)) for b, v in table.items()), pairs=0)
+    return CalibrationResult(
+        beta_cov=float(best[0]),
+        mean_d2=float(best[1]),
+        table=sorted((float(b), float(v)) for b, v in table.items()),
+        pairs=0,
+    )
 
 
 def format_table(table, chosen: float | None = None) -> str:
@@ -206,20 +219,29 @@ def format_table(table, chosen: float | None = None) -> str:
 
 
 # ----------------------------------------------------------------------------- checkpoint
-def scenario_d2_table(curve: "D2Curve", names: Sequence[str], beta: float) -> str:
+def scenario_d2_table(curve: D2Curve, names: Sequence[str], beta: float) -> str:
     """Markdown: mean / median d² and translation error per scenario (drive name prefix) at β."""
     d2 = curve.d2(beta)
     scen = np.array([n.rsplit("-", 1)[0] for n in names])
     lines = ["| scenario | pairs | mean d² | median d² | mean translation error m |", "|---|---:|---:|---:|---:|"]
     for sc in dict.fromkeys(scen):
         sel = scen == sc
-        lines.append(f"| {sc} | {int(sel.sum())} | {d2[sel].mean():.3g} | {np.median(d2[sel]):.3g} "
-                     f"| {np.hypot(*curve.err[sel, :2].T).mean():.3f} |")
+        lines.append(
+            f"| {sc} | {int(sel.sum())} | {d2[sel].mean():.3g} | {np.median(d2[sel]):.3g} "
+            f"| {np.hypot(*curve.err[sel, :2].T).mean():.3f} |"
+        )
     return "\n".join(lines)
 
 
-def calibrate_checkpoint(path, drives, output=None, batch: int = 8, max_pairs: int | None = 2000,
-                         info: dict | None = None, pose_estimator: str | None = None) -> CalibrationResult:
+def calibrate_checkpoint(
+    path,
+    drives,
+    output=None,
+    batch: int = 8,
+    max_pairs: int | None = 2000,
+    info: dict | None = None,
+    pose_estimator: str | None = None,
+) -> CalibrationResult:
     """Calibrate a checkpoint's ``beta_cov`` on held-out ``drives``; write it in place or to ``output``.
 
     ``pose_estimator`` ("soft-argmax" | "parabolic"), if given, is set in the profile first (the
@@ -239,8 +261,12 @@ def calibrate_checkpoint(path, drives, output=None, batch: int = 8, max_pairs: i
     result.scenario_table = scenario_d2_table(curve, names, result.beta_cov)
     profile = model.profile.with_(beta_cov=result.beta_cov)
     ckpt["profile"] = asdict(profile)
-    ckpt["calibration"] = {**result.to_dict(), **(info or {}), "drives": [d.name for d in drives],
-                           "per_scenario": result.scenario_table}
+    ckpt["calibration"] = {
+        **result.to_dict(),
+        **(info or {}),
+        "drives": [d.name for d in drives],
+        "per_scenario": result.scenario_table,
+    }
     write_checkpoint_dict(output or path, ckpt)
     return result
 
@@ -266,14 +292,27 @@ def run_from_args(args) -> CalibrationResult:
         seeds = parse_seeds(args.sim_seeds)
         check_seed_policy(seeds, "val")
         scenarios = [s for s in args.scenarios.split(",") if s]
-        drives = build_drives(profile, sim_specs(seeds, scenarios, args.frames), args.workers,
-                              with_labels=False, desc="calibration drives")
+        drives = build_drives(
+            profile,
+            sim_specs(seeds, scenarios, args.frames),
+            args.workers,
+            with_labels=False,
+            desc="calibration drives",
+        )
         info.update(sim_seeds=seeds, scenarios=scenarios, frames=args.frames)
-    result = calibrate_checkpoint(args.checkpoint, drives, output=args.output, batch=args.batch,
-                                  max_pairs=args.max_pairs, info=info,
-                                  pose_estimator=getattr(args, "pose_estimator", None))
+    result = calibrate_checkpoint(
+        args.checkpoint,
+        drives,
+        output=args.output,
+        batch=args.batch,
+        max_pairs=args.max_pairs,
+        info=info,
+        pose_estimator=getattr(args, "pose_estimator", None),
+    )
     print(format_table(result.table, chosen=result.beta_cov))
     print("\nper scenario at the chosen β:\n" + result.scenario_table)
-    print(f"\nbeta_cov = {result.beta_cov:.4g} -> mean d² = {result.mean_d2:.3f} over {result.pairs} pairs "
-          f"(beta_pose = {profile.beta_pose:g}); written to {args.output or args.checkpoint}")
+    print(
+        f"\nbeta_cov = {result.beta_cov:.4g} -> mean d² = {result.mean_d2:.3f} over {result.pairs} pairs "
+        f"(beta_pose = {profile.beta_pose:g}); written to {args.output or args.checkpoint}"
+    )
     return result

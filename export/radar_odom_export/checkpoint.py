@@ -76,7 +76,9 @@ def read_checkpoint_dict(path) -> dict:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # UnpicklingError, zip errors, truncated files, ...
         lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
-        why = next((ln for ln in lines if "Unsupported global" in ln or "WeightsUnpickler" in ln), lines[0] if lines else "")
+        why = next(
+            (ln for ln in lines if "Unsupported global" in ln or "WeightsUnpickler" in ln), lines[0] if lines else ""
+        )
         raise CheckpointError(
             f"{path}: not a radar-odom checkpoint ({type(exc).__name__}: {why[:240]}); it was not loaded "
             "because radar-odom checkpoints hold only tensors and plain values (no pickled objects) — "
@@ -175,4 +177,3 @@ def resolve_checkpoint(name_or_path) -> Path:
         f"{name_or_path}: no such checkpoint file, and not a shipped checkpoint name "
         f"({', '.join(shipped_checkpoint_names()) or 'none shipped'})"
     )
-

@@ -32,9 +32,9 @@ import json
 import math
 import os
 import time
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Sequence
 
 import cv2
 import numpy as np
@@ -100,11 +100,14 @@ def sim_specs(seeds: Iterable[int], scenarios: Sequence[str], frames: int, confi
 SENSORS = ("randomised", "oxford", "radiate")
 
 
-def sensor_specs(seeds: Iterable[int], scenarios: Sequence[str], frames: int, sensor: str = "randomised") -> list[DriveSpec]:
+def sensor_specs(
+    seeds: Iterable[int], scenarios: Sequence[str], frames: int, sensor: str = "randomised"
+) -> list[DriveSpec]:
     """Like `sim_specs`, with the radar chosen by ``sensor``: a preset of `radar_odom.sim.presets`
     for every drive, or ``"randomised"``: one `randomised_config` draw per (scenario, seed), so a
     model trained on them sees many gains, noise floors, speckle and clutter levels."""
-    from radar_odom.sim import SCENARIOS as PRESETS_BY_NAME, get_sensor_preset, randomised_config
+    from radar_odom.sim import SCENARIOS as PRESETS_BY_NAME
+    from radar_odom.sim import get_sensor_preset, randomised_config
 
     if sensor not in SENSORS:
         raise DataSpecError(f"sensor {sensor!r}: choose one of {', '.join(SENSORS)}")
@@ -290,7 +293,7 @@ def _sequence_cache_path(profile: GridProfile, seq_dir: Path, root: Path | None)
     seq_dir = Path(seq_dir).resolve()
     radar = sorted((seq_dir / "radar").glob("*.png"))
     stamp = [str(seq_dir), len(radar)]
-    for f in (radar[-1:] + [seq_dir / "gt" / "radar_odometry.csv"]):
+    for f in radar[-1:] + [seq_dir / "gt" / "radar_odometry.csv"]:
         if f.exists():
             stamp.append(f.stat().st_mtime_ns)
     root = cache_dir() if root is None else Path(root)
@@ -320,8 +323,12 @@ def sequence_drives(seq_dir, profile: GridProfile, root: Path | None = None, use
             )
         if len(seq) < 2:
             raise SequenceError(f"{seq_dir}: needs at least two sweeps to make a training pair, found {len(seq)}")
-        images = np.stack([scan_to_cartesian(f.scan, profile).astype(np.float16)
-                           for f in progress(seq, desc=f"reading {seq_dir.name}", unit="sweep")])
+        images = np.stack(
+            [
+                scan_to_cartesian(f.scan, profile).astype(np.float16)
+                for f in progress(seq, desc=f"reading {seq_dir.name}", unit="sweep")
+            ]
+        )
         poses = np.asarray(seq.gt_relative, np.float64).reshape(-1, 3).astype(np.float32)
         if use_cache:
             cache.parent.mkdir(parents=True, exist_ok=True)
@@ -377,7 +384,7 @@ def mirror_pair(prev, cur, pose, labels=None):
     M·R(yaw)·M = R(-yaw) for M = diag(1, -1).
     """
     x, y, yaw = pose
-    out_labels = None if labels is None else tuple(l[:, ::-1] for l in labels)
+    out_labels = None if labels is None else tuple(lab[:, ::-1] for lab in labels)
     return prev[:, ::-1], cur[:, ::-1], np.array([x, -y, -yaw], np.float32), out_labels
 
 
@@ -407,8 +414,12 @@ def rotate_image(img: np.ndarray, phi_rad: float) -> np.ndarray:
     w = img.shape[-1]
     m = rotation_warp_matrix(phi_rad, w)
     out = cv2.warpAffine(
-        np.ascontiguousarray(img, dtype=np.float32), m, (w, w),
-        flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0,
+        np.ascontiguousarray(img, dtype=np.float32),
+        m,
+        (w, w),
+        flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+        borderMode=cv2.BORDER_CONSTANT,
+        borderValue=0.0,
     )
     return out
 
@@ -423,7 +434,7 @@ def rotate_pair(prev, cur, pose, phi_rad: float, labels=None):
     x, y, yaw = (float(v) for v in pose)
     c, s = math.cos(phi_rad), math.sin(phi_rad)
     new_pose = np.array([c * x - s * y, s * x + c * y, yaw], np.float32)
-    out_labels = None if labels is None else tuple(rotate_image(l, phi_rad) for l in labels)
+    out_labels = None if labels is None else tuple(rotate_image(lab, phi_rad) for lab in labels)
     return rotate_image(prev, phi_rad), rotate_image(cur, phi_rad), new_pose, out_labels
 
 
@@ -459,7 +470,9 @@ class PairDataset:
     pair variant for the same (epoch, index) on any rank.
     """
 
-    def __init__(self, drives: Sequence[Drive], augment: Augment = NO_AUGMENT, with_labels: bool = False, seed: int = 0):
+    def __init__(
+        self, drives: Sequence[Drive], augment: Augment = NO_AUGMENT, with_labels: bool = False, seed: int = 0
+    ):
         self.drives = list(drives)
         self.augment = augment
         self.with_labels = with_labels
@@ -500,8 +513,9 @@ class PairDataset:
 
 
 # ----------------------------------------------------------------------------- toy drives
-def render_points(points_xy_m: np.ndarray, weights: np.ndarray, resolution_m: float, width_px: int,
-                  sigma_px: float = 0.8) -> np.ndarray:
+def render_points(
+    points_xy_m: np.ndarray, weights: np.ndarray, resolution_m: float, width_px: int, sigma_px: float = 0.8
+) -> np.ndarray:
     """float32[W, W]: Gaussian blobs at metric points [P, 2] (x fwd, y right) on the Cartesian grid.
 
     Separable: a point's blob is the outer product of a row profile and a column profile, so
@@ -516,8 +530,15 @@ def render_points(points_xy_m: np.ndarray, weights: np.ndarray, resolution_m: fl
     return ((gr * np.asarray(weights, np.float64)[:, None]).T @ gc).astype(np.float32)
 
 
-def toy_drive(profile: GridProfile, frames: int, seed: int, num_static: int = 150, num_followers: int = 12,
-              noise: float = 0.05, name: str | None = None) -> Drive:
+def toy_drive(
+    profile: GridProfile,
+    frames: int,
+    seed: int,
+    num_static: int = 150,
+    num_followers: int = 12,
+    noise: float = 0.05,
+    name: str | None = None,
+) -> Drive:
     """A tiny synthetic drive for tests and smoke runs (no radar simulator involved).
 
     Static point reflectors scattered around the path, plus *followers*: reflectors that move
@@ -529,11 +550,13 @@ def toy_drive(profile: GridProfile, frames: int, seed: int, num_static: int = 15
     rng = np.random.default_rng(seed)
     extent = profile.extent_m
     m = profile.max_translation_m
-    rel = np.column_stack([
-        rng.uniform(0.3 * m, 0.7 * m, frames - 1),
-        rng.normal(0.0, 0.1 * m, frames - 1).clip(-0.3 * m, 0.3 * m),
-        rng.uniform(-0.5, 0.5, frames - 1) * profile.rotation_range_rad,
-    ])
+    rel = np.column_stack(
+        [
+            rng.uniform(0.3 * m, 0.7 * m, frames - 1),
+            rng.normal(0.0, 0.1 * m, frames - 1).clip(-0.3 * m, 0.3 * m),
+            rng.uniform(-0.5, 0.5, frames - 1) * profile.rotation_range_rad,
+        ]
+    )
     from radar_odom.se2 import chain_relative, invert
 
     absolute = chain_relative(rel)  # world <- frame k

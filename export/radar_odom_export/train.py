@@ -43,10 +43,10 @@ import math
 import os
 import sys
 import time
+from collections.abc import Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 import torch
@@ -114,7 +114,9 @@ def plot_path(output) -> Path:
 
 
 # ----------------------------------------------------------------------------- losses
-def pose_loss(pred_xyyaw: torch.Tensor, gt_xyyaw: torch.Tensor, profile: GridProfile, yaw_weight: float = 1.0) -> torch.Tensor:
+def pose_loss(
+    pred_xyyaw: torch.Tensor, gt_xyyaw: torch.Tensor, profile: GridProfile, yaw_weight: float = 1.0
+) -> torch.Tensor:
     """Mean over the batch of the squared pose error in grid cells (module docstring).
 
     pred, gt: float[B, 3] (x m, y m, yaw rad). Yaw differences are not wrapped: both lie
@@ -139,9 +141,14 @@ def pose_target(gt_xyyaw: torch.Tensor, profile: GridProfile) -> torch.Tensor:
     """
     n, k_mid = profile.translation_cells, profile.num_rotations // 2
     size = torch.tensor([profile.num_rotations, 2 * n + 1, 2 * n + 1], dtype=gt_xyyaw.dtype)
-    frac = torch.stack([gt_xyyaw[:, 2] / profile.rotation_step_rad + k_mid,
-                        gt_xyyaw[:, 0] / profile.resolution_m + n,
-                        gt_xyyaw[:, 1] / profile.resolution_m + n], dim=1)
+    frac = torch.stack(
+        [
+            gt_xyyaw[:, 2] / profile.rotation_step_rad + k_mid,
+            gt_xyyaw[:, 0] / profile.resolution_m + n,
+            gt_xyyaw[:, 1] / profile.resolution_m + n,
+        ],
+        dim=1,
+    )
     frac = torch.minimum(frac.clamp(min=0), size - 1)
     lo = frac.floor().clamp(max=size - 2).clamp(min=0)
     t = frac - lo  # [B, 3] position inside the cell, 0..1
@@ -273,8 +280,9 @@ def _to(batch: dict, device) -> dict:
 def _loader(dataset, batch: int, shuffle: bool, d: Dist, seed: int, drop_last: bool):
     from torch.utils.data import DataLoader, DistributedSampler
 
-    sampler = DistributedSampler(dataset, num_replicas=d.world, rank=d.rank, shuffle=shuffle, seed=seed,
-                                 drop_last=False)
+    sampler = DistributedSampler(
+        dataset, num_replicas=d.world, rank=d.rank, shuffle=shuffle, seed=seed, drop_last=False
+    )
     drop = drop_last and len(sampler) >= batch
     return DataLoader(dataset, batch_size=batch, sampler=sampler, drop_last=drop, num_workers=0), sampler
 
@@ -310,8 +318,11 @@ def validation_stats(objective: Objective, dataset: PairDataset, batch: int, d: 
             mask_n += len(items)
     objective.train()
     total, mse_total, count, mask_sum, mask_n = d.sum([total, mse_total, count, mask_sum, mask_n])
-    return {"loss": total / max(count, 1), "pose_mse": mse_total / max(count, 1),
-            "mask_mean": mask_sum / mask_n if mask_n else float("nan")}
+    return {
+        "loss": total / max(count, 1),
+        "pose_mse": mse_total / max(count, 1),
+        "mask_mean": mask_sum / mask_n if mask_n else float("nan"),
+    }
 
 
 def _rng_state() -> dict:
@@ -350,7 +361,9 @@ def _config_record(cfg: TrainConfig) -> dict:
     return rec
 
 
-def train(cfg: TrainConfig, train_drives: Sequence[Drive], val_drives: Sequence[Drive], dist: Dist | None = None) -> dict:
+def train(
+    cfg: TrainConfig, train_drives: Sequence[Drive], val_drives: Sequence[Drive], dist: Dist | None = None
+) -> dict:
     """Train (or, for a `TRAINING_FREE` masking, just describe) a model; returns the run summary.
 
     Writes ``cfg.output`` (best checkpoint), ``<out>.state.pt``, ``<out>.log.json`` and
@@ -371,16 +384,25 @@ def train(cfg: TrainConfig, train_drives: Sequence[Drive], val_drives: Sequence[
     model = MaskedCorrelator(cfg.profile, masking=cfg.masking, dft="fft").to(d.device)
     objective = Objective(model, cfg.objective, cfg.yaw_weight, cfg.pose_loss)
     record = _config_record(cfg)
-    record.update(world_size=d.world, threads_per_rank=threads, torch=torch.__version__,
-                  train_pairs=len(train_set), val_pairs=len(val_set),
-                  train_drives=[x.name for x in train_drives], val_drives=[x.name for x in val_drives])
+    record.update(
+        world_size=d.world,
+        threads_per_rank=threads,
+        torch=torch.__version__,
+        train_pairs=len(train_set),
+        val_pairs=len(val_set),
+        train_drives=[x.name for x in train_drives],
+        val_drives=[x.name for x in val_drives],
+    )
 
     if cfg.objective in TRAINING_FREE:
         val = validation_stats(objective, val_set, cfg.batch, d)["pose_mse"]
-        note = {"raw": "raw scans: mask ≡ 1, no weights",
-                "cfar": "cell-averaging CFAR mask on the normalised sweep, no weights"}[cfg.masking]
-        record.update(best_val=val, best_epoch=0, epochs_run=0, steps=0,
-                      wall_s=time.perf_counter() - t_start, note=note)
+        note = {
+            "raw": "raw scans: mask ≡ 1, no weights",
+            "cfar": "cell-averaging CFAR mask on the normalised sweep, no weights",
+        }[cfg.masking]
+        record.update(
+            best_val=val, best_epoch=0, epochs_run=0, steps=0, wall_s=time.perf_counter() - t_start, note=note
+        )
         if d.main:
             save_checkpoint(cfg.output, model, cfg.masking, train=record)
             _write_log(cfg.output, record, [], [])
@@ -430,8 +452,10 @@ def train(cfg: TrainConfig, train_drives: Sequence[Drive], val_drives: Sequence[
     loader, sampler = _loader(train_set, cfg.batch, True, d, cfg.seed, drop_last=True)
     n_steps = len(loader) if cfg.steps_per_epoch is None else min(len(loader), cfg.steps_per_epoch)
     if n_steps == 0:
-        raise DataSpecError(f"no training step fits: {len(train_set)} training pairs for batch {cfg.batch} "
-                            f"on {d.world} process(es); give more drives or --frames, or a smaller --batch")
+        raise DataSpecError(
+            f"no training step fits: {len(train_set)} training pairs for batch {cfg.batch} "
+            f"on {d.world} process(es); give more drives or --frames, or a smaller --batch"
+        )
 
     stop = False
     epoch = start_epoch
@@ -477,10 +501,19 @@ def train(cfg: TrainConfig, train_drives: Sequence[Drive], val_drives: Sequence[
         val = stats["loss"] if cfg.objective == "masks" else stats["pose_mse"]
         tr = d.sum([total, count])
         wall = wall_before + time.perf_counter() - t_start
-        history.append({"epoch": epoch + 1, "step": step, "train_loss": tr[0] / max(tr[1], 1),
-                        "val_loss": stats["loss"], "val_pose_mse": stats["pose_mse"],
-                        "val_mask_mean": stats["mask_mean"], "lr": lr, "wall_s": wall,
-                        "complete": not stop})
+        history.append(
+            {
+                "epoch": epoch + 1,
+                "step": step,
+                "train_loss": tr[0] / max(tr[1], 1),
+                "val_loss": stats["loss"],
+                "val_pose_mse": stats["pose_mse"],
+                "val_mask_mean": stats["mask_mean"],
+                "lr": lr,
+                "wall_s": wall,
+                "complete": not stop,
+            }
+        )
         # an epoch cut short by the budget still counts: its weights were validated
         if len(val_set) == 0:  # nothing held out: keep the latest weights
             improved, best_epoch = True, epoch + 1
@@ -489,20 +522,28 @@ def train(cfg: TrainConfig, train_drives: Sequence[Drive], val_drives: Sequence[
             if improved:
                 best_val, best_epoch = val, epoch + 1
         if d.main:
-            print(f"epoch {epoch + 1}: train {history[-1]['train_loss']:.4g}  val {stats['loss']:.4g}  "
-                  + (f"val pose mse {stats['pose_mse']:.4g} cells²  " if math.isfinite(stats["pose_mse"]) else "")
-                  + f"mask mean {stats['mask_mean']:.3f}"
-                  f"{'  (best)' if improved else ''}  [{wall / 60:.1f} min]", file=sys.stderr)
-            record.update(best_val=best_val, best_epoch=best_epoch, epochs_run=epoch + 1, steps=step,
-                          wall_s=wall)
+            print(
+                f"epoch {epoch + 1}: train {history[-1]['train_loss']:.4g}  val {stats['loss']:.4g}  "
+                + (f"val pose mse {stats['pose_mse']:.4g} cells²  " if math.isfinite(stats["pose_mse"]) else "")
+                + f"mask mean {stats['mask_mean']:.3f}"
+                f"{'  (best)' if improved else ''}  [{wall / 60:.1f} min]",
+                file=sys.stderr,
+            )
+            record.update(best_val=best_val, best_epoch=best_epoch, epochs_run=epoch + 1, steps=step, wall_s=wall)
             if improved or not Path(cfg.output).exists():
                 save_checkpoint(cfg.output, model, cfg.masking, train=record)
             _save_state(cfg, model, optim, epoch + 1, step, best_val, best_epoch, history, steps_log, wall)
             _write_log(cfg.output, record, history, steps_log)
         if stop:
             break
-    record.update(best_val=best_val, best_epoch=best_epoch, epochs_run=history[-1]["epoch"] if history else start_epoch,
-                  steps=step, wall_s=wall_before + time.perf_counter() - t_start, stopped_by_budget=stop)
+    record.update(
+        best_val=best_val,
+        best_epoch=best_epoch,
+        epochs_run=history[-1]["epoch"] if history else start_epoch,
+        steps=step,
+        wall_s=wall_before + time.perf_counter() - t_start,
+        stopped_by_budget=stop,
+    )
     if d.active:
         record.update(_rank_report(d, step, params))
     if d.main:
@@ -611,8 +652,9 @@ def _plot(output, history: list, steps_log: list) -> Path | None:
 
 
 # ----------------------------------------------------------------------------- command line
-def resolve_profile(text: str, unet_base_channels: int | None = None, unet_depth: int | None = None,
-                    beta_pose: float | None = None) -> GridProfile:
+def resolve_profile(
+    text: str, unet_base_channels: int | None = None, unet_depth: int | None = None, beta_pose: float | None = None
+) -> GridProfile:
     """A named profile, or a JSON file of `GridProfile` fields; U-Net and β overrides applied."""
     from radar_odom.profiles import PROFILES, get_profile
 
@@ -651,19 +693,29 @@ def run_from_args(args) -> dict:
     """`radar-odom train`: build the data (rank 0 first, it fills the cache), then `train`."""
     import shlex
 
-    from .data import (Augment, build_drives, check_seed_policy, folder_drives, parse_seeds,
-                       sensor_specs, sequence_drives, split_folders)
+    from .data import (
+        Augment,
+        build_drives,
+        check_seed_policy,
+        folder_drives,
+        parse_seeds,
+        sensor_specs,
+        sequence_drives,
+        split_folders,
+    )
 
     d = init_distributed()
     try:
-        profile = resolve_profile(args.profile, args.unet_base_channels, args.unet_depth,
-                                  getattr(args, "beta_pose", None))
+        profile = resolve_profile(
+            args.profile, args.unet_base_channels, args.unet_depth, getattr(args, "beta_pose", None)
+        )
         if args.masking == "cfar" and profile.input_norm == "none":  # said before any data is built
-            raise DataSpecError(f"--masking cfar needs a profile with input_norm 'floor-scale' (its thresholds "
-                                f"are in normalised units); profile {profile.name!r} has 'none'")
+            raise DataSpecError(
+                f"--masking cfar needs a profile with input_norm 'floor-scale' (its thresholds "
+                f"are in normalised units); profile {profile.name!r} has 'none'"
+            )
         labels = bool(args.supervised_masks)
-        info = {"command": "radar-odom " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
-                "profile_name": profile.name}
+        info = {"command": "radar-odom " + " ".join(shlex.quote(a) for a in sys.argv[1:]), "profile_name": profile.name}
         with main_first(d):
             if args.data:
                 per_folder = folder_drives(args.data, profile)
@@ -681,27 +733,62 @@ def run_from_args(args) -> dict:
                 workers = args.workers if d.main else 1
                 sensor = getattr(args, "sensor", "randomised")
                 val_frames = getattr(args, "val_frames", None) or args.frames
-                train_drives = build_drives(profile, sensor_specs(seeds, scenarios, args.frames, sensor), workers,
-                                            with_labels=labels, desc="training drives")
+                train_drives = build_drives(
+                    profile,
+                    sensor_specs(seeds, scenarios, args.frames, sensor),
+                    workers,
+                    with_labels=labels,
+                    desc="training drives",
+                )
                 # validation on the Oxford preset: the installation the simulator is calibrated to
-                val_drives = build_drives(profile, sensor_specs(val_seeds, scenarios, val_frames, "oxford"), workers,
-                                          with_labels=labels, desc="validation drives")
-                info.update(sim_seeds=seeds, val_seeds=val_seeds, scenarios=scenarios, frames=args.frames,
-                            sensor=sensor, val_sensor="oxford", simulator_version=_sim_version())
-        augment = Augment(mirror_p=0.0 if args.no_mirror else 0.5, swap_p=0.0 if args.no_swap else 0.5,
-                          rotate_max_rad=math.radians(args.rotate_deg))
+                val_drives = build_drives(
+                    profile,
+                    sensor_specs(val_seeds, scenarios, val_frames, "oxford"),
+                    workers,
+                    with_labels=labels,
+                    desc="validation drives",
+                )
+                info.update(
+                    sim_seeds=seeds,
+                    val_seeds=val_seeds,
+                    scenarios=scenarios,
+                    frames=args.frames,
+                    sensor=sensor,
+                    val_sensor="oxford",
+                    simulator_version=_sim_version(),
+                )
+        augment = Augment(
+            mirror_p=0.0 if args.no_mirror else 0.5,
+            swap_p=0.0 if args.no_swap else 0.5,
+            rotate_max_rad=math.radians(args.rotate_deg),
+        )
         cfg = TrainConfig(
-            output=args.output, profile=profile, masking=args.masking, supervised_masks=labels,
-            epochs=args.epochs, minutes=args.minutes, lr=args.lr, lr_decay=args.lr_decay, batch=args.batch,
-            yaw_weight=args.yaw_weight, pose_loss=getattr(args, "pose_loss", "mse"), augment=augment, seed=args.seed, threads=args.threads,
-            resume=args.resume, init_from=getattr(args, "init_from", None),
-            steps_per_epoch=args.steps_per_epoch, info=info,
+            output=args.output,
+            profile=profile,
+            masking=args.masking,
+            supervised_masks=labels,
+            epochs=args.epochs,
+            minutes=args.minutes,
+            lr=args.lr,
+            lr_decay=args.lr_decay,
+            batch=args.batch,
+            yaw_weight=args.yaw_weight,
+            pose_loss=getattr(args, "pose_loss", "mse"),
+            augment=augment,
+            seed=args.seed,
+            threads=args.threads,
+            resume=args.resume,
+            init_from=getattr(args, "init_from", None),
+            steps_per_epoch=args.steps_per_epoch,
+            info=info,
         )
         summary = train(cfg, train_drives, val_drives, d)
         if d.main:
-            print(f"wrote {cfg.output}: best validation loss {summary.get('best_val', float('nan')):.4g} "
-                  f"(epoch {summary.get('best_epoch')}), {summary.get('steps', 0)} steps, "
-                  f"{summary.get('wall_s', 0.0) / 60:.1f} min")
+            print(
+                f"wrote {cfg.output}: best validation loss {summary.get('best_val', float('nan')):.4g} "
+                f"(epoch {summary.get('best_epoch')}), {summary.get('steps', 0)} steps, "
+                f"{summary.get('wall_s', 0.0) / 60:.1f} min"
+            )
         return summary
     finally:
         shutdown_distributed(d)

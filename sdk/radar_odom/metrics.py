@@ -39,11 +39,11 @@ def segment_errors(gt_poses: np.ndarray, est_poses: np.ndarray, step: int = 4, l
         # searchsorted(side="right") is the first index whose path length is > start + L
         last = np.searchsorted(dist, dist[first] + length, side="right")
         ok = last < len(dist)
-        f, l = first[ok], last[ok]
+        f, e = first[ok], last[ok]
         if f.size == 0:
             continue
-        gt_rel = invert(gt_poses[f]) @ gt_poses[l]
-        est_rel = invert(est_poses[f]) @ est_poses[l]
+        gt_rel = invert(gt_poses[f]) @ gt_poses[e]
+        est_rel = invert(est_poses[f]) @ est_poses[e]
         err = invert(est_rel) @ gt_rel
         t_err = np.linalg.norm(err[:, :2, 2], axis=1) / length
         r_err = np.abs(np.arctan2(err[:, 1, 0], err[:, 0, 0])) / length

@@ -148,7 +148,7 @@ class GridProfile:
         """
         return ((self.width_px - 1) / 2 - self.translation_cells - 1) * self.resolution_m
 
-    def with_(self, **changes) -> "GridProfile":
+    def with_(self, **changes) -> GridProfile:
         return replace(self, **changes)
 
     # --- ONNX metadata round trip ---
@@ -156,13 +156,13 @@ class GridProfile:
         return {"radar_odom.profile": json.dumps(asdict(self), sort_keys=True)}
 
     @classmethod
-    def from_metadata(cls, meta: dict[str, str]) -> "GridProfile":
+    def from_metadata(cls, meta: dict[str, str]) -> GridProfile:
         if "radar_odom.profile" not in meta:
             raise KeyError("metadata has no 'radar_odom.profile' entry: not a radar-odom model")
         return cls.from_dict(json.loads(meta["radar_odom.profile"]))
 
     @classmethod
-    def from_dict(cls, d: dict) -> "GridProfile":
+    def from_dict(cls, d: dict) -> GridProfile:
         known = {f.name for f in fields(cls)}
         return cls(**{k: v for k, v in d.items() if k in known})
 

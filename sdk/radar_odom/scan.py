@@ -95,7 +95,7 @@ class RadarScan:
         range_offset_m: float = 0.0,
         encoder_counts=None,
         source: str = "arrays",
-    ) -> "RadarScan":
+    ) -> RadarScan:
         """Build and validate a sweep from arrays (e.g. a live driver).
 
         ``power`` may be uint8 (0..255, scaled by 1/255) or float in [0, 1]. Raises

@@ -8,12 +8,32 @@ def register(subparsers) -> None:
     from ..demo import DEFAULT_FRAMES, DEFAULT_SEED
 
     p = subparsers.add_parser("demo", help=HELP, description=HELP + "; prints metrics and saves a plot.")
-    p.add_argument("--frames", type=int, default=DEFAULT_FRAMES, help=f"sweeps to simulate, 4 per second (default: {DEFAULT_FRAMES})")
-    p.add_argument("--model", default=None,
-                   help="shipped model name or .onnx path (default: cart-0.4 if shipped, else the first shipped)")
-    p.add_argument("--seed", type=int, default=DEFAULT_SEED, help=f"simulator seed (default {DEFAULT_SEED}: never used in training)")
-    p.add_argument("--scenario", default="urban", help="simulator scenario: urban, heavy_traffic, open or highway (default: urban)")
-    p.add_argument("-o", "--output", default="radar-odom-demo", help="folder for the drive, trajectories and plot (default: ./radar-odom-demo)")
+    p.add_argument(
+        "--frames",
+        type=int,
+        default=DEFAULT_FRAMES,
+        help=f"sweeps to simulate, 4 per second (default: {DEFAULT_FRAMES})",
+    )
+    p.add_argument(
+        "--model",
+        default=None,
+        help="shipped model name or .onnx path (default: cart-0.4 if shipped, else the first shipped)",
+    )
+    p.add_argument(
+        "--seed",
+        type=int,
+        default=DEFAULT_SEED,
+        help=f"simulator seed (default {DEFAULT_SEED}: never used in training)",
+    )
+    p.add_argument(
+        "--scenario", default="urban", help="simulator scenario: urban, heavy_traffic, open or highway (default: urban)"
+    )
+    p.add_argument(
+        "-o",
+        "--output",
+        default="radar-odom-demo",
+        help="folder for the drive, trajectories and plot (default: ./radar-odom-demo)",
+    )
     p.add_argument("--threads", type=int, default=None, help="onnxruntime threads (default: physical cores)")
     p.set_defaults(func=run)
 
@@ -25,8 +45,15 @@ def run(args) -> int:
 
     out = prepare_output_dir(args.output)  # OutputError (one line) when -o names a file
     try:
-        run_demo(frames=args.frames, model=args.model, seed=args.seed, scenario=args.scenario,
-                 out_dir=out, threads=args.threads, echo=print)
+        run_demo(
+            frames=args.frames,
+            model=args.model,
+            seed=args.seed,
+            scenario=args.scenario,
+            out_dir=out,
+            threads=args.threads,
+            echo=print,
+        )
     except OSError as exc:  # a disk full, a folder made read-only meanwhile, ...
         where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
         raise OutputError(f"{where}{exc.strerror or exc}") from None

@@ -27,18 +27,36 @@ def register(subparsers) -> None:
                         "name, or else an untrained export")
     p.add_argument("--search", choices=("fast", "exhaustive"), default="fast",
                    help="rotation search of the untrained exports: coarse-to-fine, or every yaw candidate")
-    p.add_argument("--threads", type=int, default=None, help="onnxruntime threads (default: physical cores)%(default).0s")
+    p.add_argument(
+        "--threads", type=int, default=None, help="onnxruntime threads (default: physical cores)%(default).0s"
+    )
     p.add_argument("--steps", type=int, default=200, help="timed stream steps per model")
     p.add_argument("--warmup", type=int, default=20, help="untimed steps first")
-    p.add_argument("--reference-steps", type=int, default=30,
-                   help="steps timed with the numpy-FFT reference (0: none; the exhaustive one is slow)")
-    p.add_argument("--operator-steps", type=int, default=50,
-                   help="steps traced with onnxruntime's profiler for the operator table (0: none)")
-    p.add_argument("--rss-steps", type=int, default=1000,
-                   help="steps of a RadarOdometer stream at --rss-profile in a fresh process, sampling RSS (0: none)")
-    p.add_argument("--file-sweeps", type=int, default=100,
-                   help="sweep files streamed end to end (decode + parse + step) per model, pipelined and serially, "
-                        "for sweeps/s (0: none)")
+    p.add_argument(
+        "--reference-steps",
+        type=int,
+        default=30,
+        help="steps timed with the numpy-FFT reference (0: none; the exhaustive one is slow)",
+    )
+    p.add_argument(
+        "--operator-steps",
+        type=int,
+        default=50,
+        help="steps traced with onnxruntime's profiler for the operator table (0: none)",
+    )
+    p.add_argument(
+        "--rss-steps",
+        type=int,
+        default=1000,
+        help="steps of a RadarOdometer stream at --rss-profile in a fresh process, sampling RSS (0: none)",
+    )
+    p.add_argument(
+        "--file-sweeps",
+        type=int,
+        default=100,
+        help="sweep files streamed end to end (decode + parse + step) per model, pipelined and serially, "
+        "for sweeps/s (0: none)",
+    )
     p.add_argument("--rss-profile", default="cart-0.4", help="profile whose model runs the RSS stream")
     p.add_argument("-o", "--output", default="radar-odom-profile", help="output folder")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
@@ -53,9 +71,20 @@ def run(args) -> int:
 
     if args.steps < 200:
         print(f"note: --steps {args.steps} is below 200; p99 over so few steps is rough")
-    run_profile(args.models, args.profiles, threads=args.threads, steps=args.steps, warmup=args.warmup,
-                reference_steps=args.reference_steps, operator_steps=args.operator_steps,
-                rss_steps=args.rss_steps, file_sweeps=args.file_sweeps, rss_profile=args.rss_profile, search=args.search,
-                out_dir=args.output, command="radar-odom " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
-                progress_bar=not args.no_progress)
+    run_profile(
+        args.models,
+        args.profiles,
+        threads=args.threads,
+        steps=args.steps,
+        warmup=args.warmup,
+        reference_steps=args.reference_steps,
+        operator_steps=args.operator_steps,
+        rss_steps=args.rss_steps,
+        file_sweeps=args.file_sweeps,
+        rss_profile=args.rss_profile,
+        search=args.search,
+        out_dir=args.output,
+        command="radar-odom " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
+        progress_bar=not args.no_progress,
+    )
     return 0

@@ -46,8 +46,8 @@ def run(args) -> int:
     from pathlib import Path
 
     from ..errors import GroundTruthWarning, OutputError, RadarOdomError
-    from ..pipeline import DEFAULT_PREFETCH
     from ..model_zoo import default_model_name, resolve_model
+    from ..pipeline import DEFAULT_PREFETCH
     from ..run import format_metrics, run_sequence
 
     model = resolve_model(args.model or default_model_name())

@@ -45,41 +45,76 @@ def register(subparsers) -> None:
     g.add_argument("--val-data", nargs="+", default=None, metavar="DIR", help="validation recording folders")
     g.add_argument("--sim-seeds", default="1000-1005", help="training world seeds, e.g. 1000-1005,1010 "
                    "(policy: 1000-1999; default: %(default)s)")
-    g.add_argument("--val-seeds", default="2000", help="validation world seeds (policy: 2000-2999; default: %(default)s)")
-    g.add_argument("--scenarios", default="urban,heavy_traffic,open,highway",
-                   help="comma-separated simulator scenarios (default: %(default)s)")
+    g.add_argument(
+        "--val-seeds", default="2000", help="validation world seeds (policy: 2000-2999; default: %(default)s)"
+    )
+    g.add_argument(
+        "--scenarios",
+        default="urban,heavy_traffic,open,highway",
+        help="comma-separated simulator scenarios (default: %(default)s)",
+    )
     g.add_argument("--frames", type=int, default=200, help="sweeps per simulated drive (default: %(default)s)")
     g.add_argument("--val-frames", type=int, default=None, help="sweeps per validation drive (default: --frames)")
-    g.add_argument("--sensor", choices=("randomised", "oxford", "radiate"), default="randomised",
-                   help="radar of the simulated training drives: a preset, or randomised: gain, noise floor, "
-                        "speckle, clutter and geometry drawn per drive around both (default: %(default)s); "
-                        "validation drives always use the oxford preset")
+    g.add_argument(
+        "--sensor",
+        choices=("randomised", "oxford", "radiate"),
+        default="randomised",
+        help="radar of the simulated training drives: a preset, or randomised: gain, noise floor, "
+        "speckle, clutter and geometry drawn per drive around both (default: %(default)s); "
+        "validation drives always use the oxford preset",
+    )
     g.add_argument("--workers", type=int, default=2, help="processes simulating drives (default: %(default)s)")
     g = p.add_argument_group("optimisation")
     g.add_argument("--epochs", type=int, default=30, help="maximum epochs (default: %(default)s)")
-    g.add_argument("--minutes", type=float, default=None,
-                   help="wall-clock budget of this invocation; stops mid-epoch, validates and saves")
-    g.add_argument("--steps-per-epoch", type=int, default=None,
-                   help="cap on steps per epoch (validation and checkpointing happen once per epoch)")
-    g.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate (paper: 1e-5 on a GPU; default: %(default)s)")
+    g.add_argument(
+        "--minutes",
+        type=float,
+        default=None,
+        help="wall-clock budget of this invocation; stops mid-epoch, validates and saves",
+    )
+    g.add_argument(
+        "--steps-per-epoch",
+        type=int,
+        default=None,
+        help="cap on steps per epoch (validation and checkpointing happen once per epoch)",
+    )
+    g.add_argument(
+        "--lr", type=float, default=1e-3, help="Adam learning rate (paper: 1e-5 on a GPU; default: %(default)s)"
+    )
     g.add_argument("--lr-decay", type=float, default=0.9, help="learning-rate factor per epoch (default: %(default)s)")
     g.add_argument("--batch", type=int, default=8, help="pairs per step and process (paper: 5; default: %(default)s)")
-    g.add_argument("--pose-loss", choices=("mse", "ce", "ce+mse"), default="mse",
-                   help="mse: the paper's squared soft-argmax error (in grid cells); ce: cross-entropy of the "
-                        "candidate softmax against the true pose (Barsan et al. 2018), strong gradients even "
-                        "when the mean sits on a wrong peak; ce+mse: both (default: %(default)s)")
-    g.add_argument("--yaw-weight", type=float, default=1.0,
-                   help="weight of the yaw term; errors are measured in grid cells (default: %(default)s)")
-    g.add_argument("--rotate-deg", type=float, default=0.0,
-                   help="augment by rotating both sweeps by a common random angle within ±this (default: off)")
+    g.add_argument(
+        "--pose-loss",
+        choices=("mse", "ce", "ce+mse"),
+        default="mse",
+        help="mse: the paper's squared soft-argmax error (in grid cells); ce: cross-entropy of the "
+        "candidate softmax against the true pose (Barsan et al. 2018), strong gradients even "
+        "when the mean sits on a wrong peak; ce+mse: both (default: %(default)s)",
+    )
+    g.add_argument(
+        "--yaw-weight",
+        type=float,
+        default=1.0,
+        help="weight of the yaw term; errors are measured in grid cells (default: %(default)s)",
+    )
+    g.add_argument(
+        "--rotate-deg",
+        type=float,
+        default=0.0,
+        help="augment by rotating both sweeps by a common random angle within ±this (default: off)",
+    )
     g.add_argument("--no-mirror", action="store_true", help="disable the left/right mirror augmentation")
     g.add_argument("--no-swap", action="store_true", help="disable the swap-pair-order augmentation")
     g.add_argument("--seed", type=int, default=0, help="seed of initial weights, shuffling, augmentation")
     g.add_argument("--threads", type=int, default=None, help="torch threads per process (default: cores / processes)")
     g.add_argument("--resume", action="store_true", help="continue from OUTPUT.state.pt")
-    g.add_argument("--init-from", default=None, metavar="CKPT",
-                   help="start from another checkpoint's weights (same U-Net size), e.g. a cart-0.8 model for "
-                        "cart-0.4, whose U-Net runs on the same 0.8 m/px grid (mask_downsample 2)")
+    g.add_argument(
+        "--init-from",
+        default=None,
+        metavar="CKPT",
+        help="start from another checkpoint's weights (same U-Net size), e.g. a cart-0.8 model for "
+        "cart-0.4, whose U-Net runs on the same 0.8 m/px grid (mask_downsample 2)",
+    )
     p.set_defaults(func=run)
 
 

@@ -11,7 +11,6 @@ from ..errors import RadarOdomError
 from .stats import peak_rss_mb, rss_mb
 from .sweeps import PROFILE_SEED, decode_png, parse_sweep, simulated_pngs
 
-
 RSS_CHILD = r"""
 import json, sys
 from radar_odom.latency.memory import rss_stream_here

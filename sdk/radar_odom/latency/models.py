@@ -33,8 +33,8 @@ def resolve_models(models, profiles, out_dir, search: str = "fast", echo=print) 
     """(label, path, untrained) per model: the given ones (names or paths), then for each of
     ``profiles`` not covered by them (same resolution and width) the shipped model of that name,
     or failing that an untrained export."""
-    from ..onnx_model import ModelInfo
     from ..model_zoo import pretrained, pretrained_names, resolve_model
+    from ..onnx_model import ModelInfo
     from ..profiles import get_profile
 
     chosen, covered = [], set()

@@ -17,10 +17,25 @@ DEFAULT_PROFILES = ("cart-0.8", "cart-0.4", "cart-0.2")
 PAPER_GPU_MS = {0.8: 11.3, 0.4: 16.9, 0.2: 48.5}
 
 
-def run_profile(models=(), profiles=DEFAULT_PROFILES, *, threads: int | None = None, steps: int = 200,
-                warmup: int = 20, reference_steps: int = 30, operator_steps: int = 50, rss_steps: int = 0,
-                rss_profile: str = "cart-0.4", search: str = "fast", out_dir="radar-odom-profile",
-                distinct_sweeps: int = 24, file_sweeps: int = 100, command: str | None = None, echo=print, progress_bar=True) -> dict:
+def run_profile(
+    models=(),
+    profiles=DEFAULT_PROFILES,
+    *,
+    threads: int | None = None,
+    steps: int = 200,
+    warmup: int = 20,
+    reference_steps: int = 30,
+    operator_steps: int = 50,
+    rss_steps: int = 0,
+    rss_profile: str = "cart-0.4",
+    search: str = "fast",
+    out_dir="radar-odom-profile",
+    distinct_sweeps: int = 24,
+    file_sweeps: int = 100,
+    command: str | None = None,
+    echo=print,
+    progress_bar=True,
+) -> dict:
     """Profile every model (see `resolve_models`), write ``profile.json`` and ``profile.md`` in
     ``out_dir``, and return the report dictionary."""
     from ..onnx_model import physical_cores
@@ -37,30 +52,58 @@ def run_profile(models=(), profiles=DEFAULT_PROFILES, *, threads: int | None = N
     pngs = simulated_pngs(distinct_sweeps)
     results = []
     for label, path, untrained in chosen:
-        r = profile_model(path, pngs, steps=steps, warmup=warmup, threads=threads,
-                          reference_steps=reference_steps, operator_steps=operator_steps,
-                          trace_dir=out_dir, name=label, untrained=untrained, progress_bar=progress_bar)
+        r = profile_model(
+            path,
+            pngs,
+            steps=steps,
+            warmup=warmup,
+            threads=threads,
+            reference_steps=reference_steps,
+            operator_steps=operator_steps,
+            trace_dir=out_dir,
+            name=label,
+            untrained=untrained,
+            progress_bar=progress_bar,
+        )
         if file_sweeps > 0:
             r.files = file_throughput(path, pngs, sweeps=file_sweeps, threads=threads)
         echo(summary_line(r))
         results.append(r.to_dict())
-    report = {"command": command, "machine": machine,
-              "settings": {"steps": steps, "warmup": warmup, "threads": threads, "reference_steps": reference_steps,
-                           "operator_steps": operator_steps, "distinct_sweeps": distinct_sweeps,
-                           "file_sweeps": file_sweeps,
-                           "sweeps": f"simulated, seed {PROFILE_SEED}, urban"},
-              "models": results, "rss_stream": None}
+    report = {
+        "command": command,
+        "machine": machine,
+        "settings": {
+            "steps": steps,
+            "warmup": warmup,
+            "threads": threads,
+            "reference_steps": reference_steps,
+            "operator_steps": operator_steps,
+            "distinct_sweeps": distinct_sweeps,
+            "file_sweeps": file_sweeps,
+            "sweeps": f"simulated, seed {PROFILE_SEED}, urban",
+        },
+        "models": results,
+        "rss_stream": None,
+    }
     if rss_steps:
-        target = next(((lbl, p) for (lbl, p, _), r in zip(chosen, results)
-                       if r["profile"]["name"] == rss_profile or lbl.startswith(rss_profile)), None)
+        target = next(
+            (
+                (lbl, p)
+                for (lbl, p, _), r in zip(chosen, results)
+                if r["profile"]["name"] == rss_profile or lbl.startswith(rss_profile)
+            ),
+            None,
+        )
         if target is None:
             echo(f"no {rss_profile} model among the profiled ones: no RSS stream")
         else:
             echo(f"RSS: {rss_steps} steps of {target[0]} through RadarOdometer in a fresh process ...")
             report["rss_stream"] = {"model": target[0], **rss_stream(target[1], rss_steps, threads)}
             rs = report["rss_stream"]
-            echo(f"RSS: peak {rs['peak_mb']:.0f} MiB, {rs['growth_mb']:+.1f} MiB from step "
-                 f"{rs['growth_from_step']} to {rs['steps']}")
+            echo(
+                f"RSS: peak {rs['peak_mb']:.0f} MiB, {rs['growth_mb']:+.1f} MiB from step "
+                f"{rs['growth_from_step']} to {rs['steps']}"
+            )
     (out_dir / "profile.json").write_text(json.dumps(report, indent=2))
     (out_dir / "profile.md").write_text(markdown_report(report))
     echo(f"wrote {out_dir / 'profile.json'} and {out_dir / 'profile.md'}")
@@ -96,8 +139,9 @@ def _search_label(r: dict) -> str:
     s = r.get("search")
     if not s:
         return f"exhaustive ({_num_rotations(r['profile'])} yaws)"
-    return (f"coarse 1/{s['coarse_factor']} every {s['coarse_stride']}, band {s['band_rotations']} yaws"
-            + ("" if s.get("rotation", "polar") == "polar" else f", {s['rotation']}"))
+    return f"coarse 1/{s['coarse_factor']} every {s['coarse_stride']}, band {s['band_rotations']} yaws" + (
+        "" if s.get("rotation", "polar") == "polar" else f", {s['rotation']}"
+    )
 
 
 def _num_rotations(profile: dict) -> int:
@@ -109,17 +153,20 @@ def summary_line(r: ModelProfile) -> str:
     res = r.profile["resolution_m"]
     paper = PAPER_GPU_MS.get(round(res, 3))
     tail = f" (paper GPU {paper} ms)" if paper else ""
-    return (f"{r.name}: step {st['median']:.1f} ms median{tail}, graph {g['median']:.1f} ms, "
-            f"p2c {r.stages['polar_to_cartesian']['median']:.1f} ms, decode {r.stages['png_decode']['median']:.1f} ms, "
-            f"peak RSS {r.peak_rss_mb:.0f} MiB" + _files_tail(r.files))
+    return (
+        f"{r.name}: step {st['median']:.1f} ms median{tail}, graph {g['median']:.1f} ms, "
+        f"p2c {r.stages['polar_to_cartesian']['median']:.1f} ms, decode {r.stages['png_decode']['median']:.1f} ms, "
+        f"peak RSS {r.peak_rss_mb:.0f} MiB" + _files_tail(r.files)
+    )
 
 
 def _files_tail(files: dict) -> str:
     f = (files or {}).get("pipelined")
     if not f:
         return ""
-    return (f"; files: {f['sweeps_per_s']:.1f} sweeps/s pipelined, wall / max(read, step) {f['ratio']:.2f}"
-            + (f" (serial {files['serial']['ratio']:.2f})" if files.get("serial") else ""))
+    return f"; files: {f['sweeps_per_s']:.1f} sweeps/s pipelined, wall / max(read, step) {f['ratio']:.2f}" + (
+        f" (serial {files['serial']['ratio']:.2f})" if files.get("serial") else ""
+    )
 
 
 def markdown_report(report: dict) -> str:
@@ -128,17 +175,20 @@ def markdown_report(report: dict) -> str:
     lines = []
     if report.get("command"):
         lines += [f"Command: `{report['command']}`", ""]
-    lines += [f"Machine: {format_machine(report['machine'])}.",
-              f"Sweeps: {st['sweeps']} ({st['distinct_sweeps']} distinct, cycled). Times in ms as "
-              f"median / p90 / p99 over {st['steps']} steps after {st['warmup']} warm-up steps; "
-              f"numpy-FFT references over {st['reference_steps']} steps. The references search the masked "
-              "images (no masker); *search only* is the graph's median minus its masker operators' median "
-              f"({', '.join(sorted(MASKER_OPS))}) from the traced runs. Process peak RSS is cumulative over the "
-              "models profiled so far; the memory line below is one model alone.", "",
-              "| model | grid | search | PNG decode | sweep parse | polar→Cartesian | graph | step (p→C + graph) "
-              "| paper GPU step | graph / numpy-FFT exhaustive | graph / numpy-FFT same search "
-              "| search only / numpy-FFT same search | process peak RSS MiB |",
-              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines += [
+        f"Machine: {format_machine(report['machine'])}.",
+        f"Sweeps: {st['sweeps']} ({st['distinct_sweeps']} distinct, cycled). Times in ms as "
+        f"median / p90 / p99 over {st['steps']} steps after {st['warmup']} warm-up steps; "
+        f"numpy-FFT references over {st['reference_steps']} steps. The references search the masked "
+        "images (no masker); *search only* is the graph's median minus its masker operators' median "
+        f"({', '.join(sorted(MASKER_OPS))}) from the traced runs. Process peak RSS is cumulative over the "
+        "models profiled so far; the memory line below is one model alone.",
+        "",
+        "| model | grid | search | PNG decode | sweep parse | polar→Cartesian | graph | step (p→C + graph) "
+        "| paper GPU step | graph / numpy-FFT exhaustive | graph / numpy-FFT same search "
+        "| search only / numpy-FFT same search | process peak RSS MiB |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in report["models"]:
         p, s = r["profile"], r["stages"]
         paper = PAPER_GPU_MS.get(round(p["resolution_m"], 3))
@@ -146,39 +196,61 @@ def markdown_report(report: dict) -> str:
             f"| {r['name']} | {p['resolution_m']} m × {p['width_px']} px | {_search_label(r)} | {_ms(s['png_decode'])} "
             f"| {_ms(s['sweep_parse'])} | {_ms(s['polar_to_cartesian'])} | {_ms(s['graph'])} | {_ms(s['step'])} "
             f"| {paper if paper else '–'} | {_ratio(r, 'exhaustive')} | {_ratio(r, 'same_search')} "
-            f"| {_search_ratio(r)} | {r['peak_rss_mb']:.0f} |")
+            f"| {_search_ratio(r)} | {r['peak_rss_mb']:.0f} |"
+        )
     for r in report["models"]:
         ops = r.get("operators") or {}
         if not ops:
             continue
-        lines += ["", f"Operators in the graph of {r['name']} (ms per run, median / p90 / p99; share of node time):", "",
-                  "| operator | time | share | nodes |", "|---|---|---|---|"]
+        lines += [
+            "",
+            f"Operators in the graph of {r['name']} (ms per run, median / p90 / p99; share of node time):",
+            "",
+            "| operator | time | share | nodes |",
+            "|---|---|---|---|",
+        ]
         for op, v in list(ops.items())[:10]:
             lines.append(f"| {op} | {_ms(v)} | {100 * v['share']:.0f} % | {v['nodes']} |")
-    agreement = [(r["name"], k, ref["pose_diff_median"]) for r in report["models"]
-                 for k, ref in (r.get("reference") or {}).items()]
+    agreement = [
+        (r["name"], k, ref["pose_diff_median"])
+        for r in report["models"]
+        for k, ref in (r.get("reference") or {}).items()
+    ]
     if agreement:
         lines += ["", "Pose agreement, graph vs numpy-FFT reference (median |Δ| over the reference steps):", ""]
-        lines += [f"- {name}, {k.replace('_', ' ')}: x {d['x_m']:.3f} m, y {d['y_m']:.3f} m, "
-                  f"yaw {math.degrees(d['yaw_rad']):.3f}°" for name, k, d in agreement]
+        lines += [
+            f"- {name}, {k.replace('_', ' ')}: x {d['x_m']:.3f} m, y {d['y_m']:.3f} m, "
+            f"yaw {math.degrees(d['yaw_rad']):.3f}°"
+            for name, k, d in agreement
+        ]
     with_files = [r for r in report["models"] if (r.get("files") or {}).get("pipelined")]
     if with_files:
-        lines += ["", f"End to end on files: {st.get('file_sweeps')} Oxford-layout sweep files read back from disk "
-                      "through `radar_odom.iter_estimates` (PNG decode + parse + polar→Cartesian on a worker "
-                      "thread while the graph runs, and the same serially). *Ratio* = wall per sweep / "
-                      "max(median read, median step); 1.0 is perfect overlap.", "",
-                  "| model | pipelined sweeps/s | ms per sweep | read median | step median | ratio "
-                  "| serial sweeps/s | serial ratio |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
+        lines += [
+            "",
+            f"End to end on files: {st.get('file_sweeps')} Oxford-layout sweep files read back from disk "
+            "through `radar_odom.iter_estimates` (PNG decode + parse + polar→Cartesian on a worker "
+            "thread while the graph runs, and the same serially). *Ratio* = wall per sweep / "
+            "max(median read, median step); 1.0 is perfect overlap.",
+            "",
+            "| model | pipelined sweeps/s | ms per sweep | read median | step median | ratio "
+            "| serial sweeps/s | serial ratio |",
+            "|---|---:|---:|---:|---:|---:|---:|---:|",
+        ]
         for r in with_files:
             p, s = r["files"]["pipelined"], r["files"].get("serial") or {}
-            lines.append(f"| {r['name']} | {p['sweeps_per_s']:.1f} | {1e3 * p['wall_per_sweep_s']:.1f} "
-                         f"| {1e3 * p['load_median_s']:.1f} | {1e3 * p['step_median_s']:.1f} | {p['ratio']:.2f} "
-                         f"| {s.get('sweeps_per_s', float('nan')):.1f} | {s.get('ratio', float('nan')):.2f} |")
+            lines.append(
+                f"| {r['name']} | {p['sweeps_per_s']:.1f} | {1e3 * p['wall_per_sweep_s']:.1f} "
+                f"| {1e3 * p['load_median_s']:.1f} | {1e3 * p['step_median_s']:.1f} | {p['ratio']:.2f} "
+                f"| {s.get('sweeps_per_s', float('nan')):.1f} | {s.get('ratio', float('nan')):.2f} |"
+            )
     rs = report.get("rss_stream")
     if rs:
-        lines += ["", f"Memory: {rs['steps']} steps of {rs['model']} through `RadarOdometer` in a fresh process: "
-                      f"peak RSS {rs['peak_mb']:.0f} MiB; RSS {rs['growth_mb']:+.1f} MiB from step "
-                      f"{rs['growth_from_step']} to the end (sampled every {rs.get('every', '?')} steps)."]
+        lines += [
+            "",
+            f"Memory: {rs['steps']} steps of {rs['model']} through `RadarOdometer` in a fresh process: "
+            f"peak RSS {rs['peak_mb']:.0f} MiB; RSS {rs['growth_mb']:+.1f} MiB from step "
+            f"{rs['growth_from_step']} to the end (sampled every {rs.get('every', '?')} steps).",
+        ]
     untrained = [r["name"] for r in report["models"] if r.get("untrained")]
     if untrained:
         lines += ["", f"Untrained models (exported on the fly, timing only): {', '.join(untrained)}."]

@@ -142,11 +142,11 @@ class SimConfig:
     base_timestamp_us: int = 1547131046000000  # Oxford-era epoch of seed 0's first sweep
     seed_offset_us: int = 3_600_000_000  # each seed starts an hour later, so drives never overlap
 
-    def with_sensor(self, **kw) -> "SimConfig":
+    def with_sensor(self, **kw) -> SimConfig:
         """A copy with some `SensorConfig` fields replaced (e.g. ``num_bins=800`` for tests)."""
         return replace(self, sensor=replace(self.sensor, **kw))
 
-    def with_artefacts(self, **kw) -> "SimConfig":
+    def with_artefacts(self, **kw) -> SimConfig:
         return replace(self, artefacts=replace(self.artefacts, **kw))
 
 
@@ -273,11 +273,11 @@ class Scenario:
     world: WorldConfig = field(default_factory=WorldConfig)
     traffic: TrafficConfig = field(default_factory=TrafficConfig)
 
-    def with_world(self, **kw) -> "Scenario":
+    def with_world(self, **kw) -> Scenario:
         return replace(self, world=replace(self.world, **kw))
 
-    def with_drive(self, **kw) -> "Scenario":
+    def with_drive(self, **kw) -> Scenario:
         return replace(self, drive=replace(self.drive, **kw))
 
-    def with_traffic(self, **kw) -> "Scenario":
+    def with_traffic(self, **kw) -> Scenario:
         return replace(self, traffic=replace(self.traffic, **kw))

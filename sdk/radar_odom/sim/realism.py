@@ -17,7 +17,7 @@ sweeps given. They are chosen to cover what a matcher and a masker see:
 """
 from __future__ import annotations
 
-from typing import Iterable, Sequence
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 
@@ -86,7 +86,9 @@ def mean_statistics(scans: Iterable) -> dict[str, float]:
     return {k: float(np.mean([r[k] for r in rows])) for k in keys}
 
 
-def compare(real: dict[str, float], sim: dict[str, float], tolerance: float = 0.3) -> list[tuple[str, float, float, float, bool]]:
+def compare(
+    real: dict[str, float], sim: dict[str, float], tolerance: float = 0.3
+) -> list[tuple[str, float, float, float, bool]]:
     """Rows ``(name, real, sim, sim/real, within tolerance)`` for the statistics both hold."""
     out = []
     for k in real:

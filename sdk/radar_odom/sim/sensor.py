@@ -240,20 +240,23 @@ class SweepRenderer:
             n = art.fixed_rings
             centre = rng_fixed.uniform(*art.fixed_ring_range_m, n) / self.res
             gain = 10.0 ** (rng_fixed.uniform(*art.fixed_ring_db, n) / 10.0) - 1.0
-            bump = gain[:, None] * np.exp(-0.5 * ((np.arange(self.B) - centre[:, None]) / art.fixed_ring_width_bins) ** 2)
+            offset_bins = (np.arange(self.B) - centre[:, None]) / art.fixed_ring_width_bins
+            bump = gain[:, None] * np.exp(-0.5 * offset_bins**2)
             noise_b = noise_b * (1.0 + bump.sum(axis=0))
         self.noise_b = noise_b.astype(np.float32)  # mean power of everything that is not a return
         nb = int(min(self.B, round(art.near_clutter_range_m / self.res)))
         if art.enabled and nb > 0:
             # the vehicle's own body and mount: fixed per drive, smooth-ish in azimuth
-            row_db = np.convolve(rng_fixed.normal(0, art.near_clutter_spread_db, self.A + 8), np.ones(5) / 5 ** 0.5, "valid")[: self.A]
+            row_db = np.convolve(
+                rng_fixed.normal(0, art.near_clutter_spread_db, self.A + 8), np.ones(5) / 5**0.5, "valid"
+            )[: self.A]
             fall = art.near_clutter_db * (1.0 - np.arange(nb) / nb) ** 1.5
             self.near = (10.0 ** ((fall[None, :] + row_db[:, None]) / 10.0)).astype(np.float32)
         else:
             self.near = np.zeros((self.A, 0), np.float32)
         ring_rows = np.arange(-art.ring_half_width_rows, art.ring_half_width_rows + 1)
         self.ring_rows = ring_rows[ring_rows != 0]
-        self.ring_w = (10 ** (art.ring_relative_db / 10) * np.exp(-np.abs(self.ring_rows) / art.ring_decay_rows))
+        self.ring_w = 10 ** (art.ring_relative_db / 10) * np.exp(-np.abs(self.ring_rows) / art.ring_decay_rows)
         lobe = np.arange(-art.sidelobe_half_width_bins, art.sidelobe_half_width_bins + 1)
         self.lobe_bins = lobe[np.abs(lobe) > 3]
         self.lobe_w = 10 ** (art.sidelobe_relative_db / 10) * np.exp(-np.abs(self.lobe_bins) / art.sidelobe_decay_bins)
@@ -271,7 +274,7 @@ class SweepRenderer:
         return cv2.addWeighted(logp, DB / s.db_per_count, logp, 0.0, -s.floor_db / s.db_per_count, dtype=cv2.CV_8U)
 
     # ------------------------------------------------------------------ geometry → returns
-    def _segment_returns(self, segments: list[Segments], orig, yaw, dirs, rng) -> tuple["_Returns", "_Occlusion"]:
+    def _segment_returns(self, segments: list[Segments], orig, yaw, dirs, rng) -> tuple[_Returns, _Occlusion]:
         """Every ray-segment hit, sorted by (row, range), attenuated by the hits in front; and
         the cumulative attenuation along each row for point scatterers to look up."""
         s = self.cfg.sensor
@@ -307,7 +310,7 @@ class SweepRenderer:
         cosc = np.clip(cosi, s.min_incidence_cos, 1.0)  # float32 casting can overshoot 1
         p_db = refl + 10.0 * s.incidence_exponent * np.log10(cosc) - 10.0 * s.range_exponent * np.log10(r) + atten
         # a grazing surface fills the range it spans within one azimuth step
-        extent = np.minimum(r * self.d_az * np.sqrt(1.0 - cosc ** 2) / cosc, s.max_range_extent_m)
+        extent = np.minimum(r * self.d_az * np.sqrt(1.0 - cosc**2) / cosc, s.max_range_extent_m)
         nbins = np.maximum(1, np.rint(extent / self.res)).astype(np.int64)
         return _Returns(rows.astype(np.float64), r, p_db, moving, nbins), occ
 
@@ -315,7 +318,7 @@ class SweepRenderer:
         sd = self.cfg.sensor.scintillation_db
         return rng.normal(0.0, sd, n) if (sd > 0 and self.cfg.sensor.noise) else np.zeros(n)
 
-    def _point_returns(self, pts: Points, orig, yaw, occ: "_Occlusion", rng) -> "_Returns":
+    def _point_returns(self, pts: Points, orig, yaw, occ: _Occlusion, rng) -> _Returns:
         """Point scatterers at a fractional row: iterate the azimuth at which each is seen (the
         sensor moves and turns while it spins), then look up the attenuation of the segment
         hits in front of it on that row."""
@@ -337,7 +340,7 @@ class SweepRenderer:
         p_db = refl - 10.0 * self.cfg.sensor.range_exponent * np.log10(r) + atten
         return _Returns(f, r, p_db, np.full(len(r), pts.moving), np.ones(len(r), np.int64))
 
-    def _entries(self, ret: "_Returns", to_other: bool = False):
+    def _entries(self, ret: _Returns, to_other: bool = False):
         """Impulse entries (image 0 static / 1 other, row, bin, linear power) of returns:
         single-bin returns split linearly between neighbouring bins and rows (sub-cell
         position), extended ones spread uniformly over their bins."""
@@ -372,15 +375,20 @@ class SweepRenderer:
         row = np.mod(np.concatenate(rows).astype(np.int64), A)
         return np.concatenate(imgs), row, np.concatenate(bins).astype(np.int64), np.concatenate(wts)
 
-    def _artefacts(self, ret: "_Returns"):
+    def _artefacts(self, ret: _Returns):
         """Entries of multipath ghosts, phase-noise arcs and range sidelobes of strong returns,
         and the per-row noise raise of saturation streaks (linear power [A])."""
         art, A, res = self.cfg.artefacts, self.A, self.res
         out = []
         g = ret.p_db > art.ghost_threshold_db
         for factor, rel_db in art.ghosts if g.any() else ():
-            ghost = _Returns(ret.row[g], ret.r[g] * factor, ret.p_db[g] + rel_db, ret.moving[g],
-                             np.maximum(1, np.rint(ret.nbins[g] * factor)).astype(np.int64))
+            ghost = _Returns(
+                ret.row[g],
+                ret.r[g] * factor,
+                ret.p_db[g] + rel_db,
+                ret.moving[g],
+                np.maximum(1, np.rint(ret.nbins[g] * factor)).astype(np.int64),
+            )
             keep = ghost.r < self.r_max
             out.append(self._entries(ghost.select(keep), to_other=True))
         row_i = np.mod(np.rint(ret.row).astype(np.int64), A)
@@ -406,8 +414,14 @@ class SweepRenderer:
             streak = (10.0 ** (raise_db / 10.0) - 1.0) * 10.0 ** (self.cfg.sensor.noise_floor_db / 10.0)
         return out, streak
 
-    def render(self, orig: np.ndarray, yaw: np.ndarray, segments: list[Segments],
-               points: list[Points], rng: np.random.Generator):
+    def render(
+        self,
+        orig: np.ndarray,
+        yaw: np.ndarray,
+        segments: list[Segments],
+        points: list[Points],
+        rng: np.random.Generator,
+    ):
         """Render one sweep.
 
         Args:
@@ -440,14 +454,14 @@ class SweepRenderer:
         ok = (binf >= 0) & (binf < B) & (wts > 0)
         np.add.at(buf.reshape(-1), (img[ok] * H + p + row[ok]) * B + binf[ok], wts[ok].astype(np.float32))
         if self.near.shape[1]:
-            buf[H + p: H + p + A, : self.near.shape[1]] += self.near
+            buf[H + p : H + p + A, : self.near.shape[1]] += self.near
         for off in (0, H):  # wrap-around rows so the beam blurs across the 0/2π seam
-            buf[off: off + p] = buf[off + A: off + A + p]
-            buf[off + A + p: off + A + 2 * p] = buf[off + p: off + 2 * p]
+            buf[off : off + p] = buf[off + A : off + A + p]
+            buf[off + A + p : off + A + 2 * p] = buf[off + p : off + 2 * p]
         # the azimuth beam and the range main lobe, both images in one separable filter
         blur = cv2.sepFilter2D(buf, cv2.CV_32F, self.k_rng, self.k_az, borderType=cv2.BORDER_CONSTANT)
-        static = blur[p: p + A]
-        other = blur[H + p: H + p + A]
+        static = blur[p : p + A]
+        other = blur[H + p : H + p + A]
 
         # streaks, speckle, receiver noise, 8-bit log power
         streak32 = streak.astype(np.float32)[:, None]
@@ -508,9 +522,11 @@ class _Returns:
     moving: np.ndarray
     nbins: np.ndarray
 
-    def select(self, m) -> "_Returns":
+    def select(self, m) -> _Returns:
         return _Returns(self.row[m], self.r[m], self.p_db[m], self.moving[m], self.nbins[m])
 
     @staticmethod
-    def concat(items: list["_Returns"]) -> "_Returns":
-        return _Returns(*(np.concatenate([getattr(x, f) for x in items]) for f in ("row", "r", "p_db", "moving", "nbins")))
+    def concat(items: list[_Returns]) -> _Returns:
+        return _Returns(
+            *(np.concatenate([getattr(x, f) for x in items]) for f in ("row", "r", "p_db", "moving", "nbins"))
+        )

@@ -12,8 +12,8 @@ can be rendered in any order with identical results.
 """
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Iterator
 
 import numpy as np
 
