@@ -26,6 +26,9 @@ The keys (`SCHEMA`; required: always, or for stream-form / polar models only):
   present, a profile edited by hand is refused.
 - ``radar_odom.search`` (JSON object): settings of the coarse-to-fine yaw search
   (``fast_search``); absent when every yaw candidate is scored.
+- ``radar_odom.quantization`` (JSON object): how the masker's ``Conv`` nodes were quantised
+  (``radar_odom_export.quantize``: scheme, op types, weight/activation types, calibration);
+  absent for a float32 graph.
 - provenance, optional (a file without them reads the `MetadataKey.default` stated below):
   ``radar_odom.masking``, ``radar_odom.training_data``, ``radar_odom.version``,
   ``radar_odom.opset``, ``radar_odom.exporter``, ``radar_odom.torch_version``.
@@ -79,6 +82,8 @@ SCHEMA: tuple[MetadataKey, ...] = (
     MetadataKey("radar_odom.profile_sha256", "sha256", "optional", "SHA-256 of the profile text"),
     MetadataKey("radar_odom.search", "json-object", "optional",
                 "coarse-to-fine yaw search settings; absent: every yaw candidate is scored"),
+    MetadataKey("radar_odom.quantization", "json-object", "optional",
+                "int8 quantisation of the masker (scheme, op types, calibration); absent: float32"),
     MetadataKey("radar_odom.masking", "text", "optional", "masking of the model", "unknown"),
     MetadataKey("radar_odom.training_data", "text", "optional", "JSON provenance of the weights", ""),
     MetadataKey("radar_odom.version", "text", "optional", "radar-odom version that exported it", ""),
@@ -257,6 +262,7 @@ class ModelInfo:
     source: str
     search: dict | None = None  # fast-search settings; None: every yaw candidate is scored
     torch_version: str = ""
+    quantization: dict | None = None  # int8 masker settings; None: a float32 graph
 
     @classmethod
     def from_metadata(cls, meta: dict[str, str], source: str = "model") -> ModelInfo:
@@ -319,6 +325,7 @@ class ModelInfo:
             )
         opset = v.integer("radar_odom.opset")
         search = v.json("radar_odom.search", dict, required=False)
+        quantization = v.json("radar_odom.quantization", dict, required=False)
         return cls(
             profile=profile,
             form=form,
@@ -336,6 +343,7 @@ class ModelInfo:
             source=source,
             search=search,
             torch_version=v.text("radar_odom.torch_version"),
+            quantization=quantization,
         )
 
     @property
@@ -357,11 +365,12 @@ def io_names(profile: GridProfile, form: str) -> tuple[list[str], list[str]]:
 def build_metadata(*, profile: GridProfile, form: str, sweep_geometry: dict, input_shape, state_shape=None,
                    polar_input: dict | None = None, masking: str, training_data="", version: str,
                    opset: int, exporter: str, torch_version: str = "", search: dict | None = None,
-                   source: str = "export") -> dict[str, str]:
+                   quantization: dict | None = None, source: str = "export") -> dict[str, str]:
     """The ``radar_odom.*`` metadata of a model file, as text, checked by `ModelInfo.from_metadata`
     (so the writer can never write what the runtime refuses: `InvalidModelError` if it would).
 
-    ``training_data``: text, or a JSON-able dict; ``search``: the fast search's settings.
+    ``training_data``: text, or a JSON-able dict; ``search``: the fast search's settings;
+    ``quantization``: how the masker was quantised (``radar_odom_export.quantize``).
     """
     inputs, outputs = io_names(profile, form)
     meta = {
@@ -389,6 +398,8 @@ def build_metadata(*, profile: GridProfile, form: str, sweep_geometry: dict, inp
     meta["radar_odom.profile_sha256"] = profile_digest(meta["radar_odom.profile"])
     if search is not None:
         meta["radar_odom.search"] = json.dumps(search, sort_keys=True)
+    if quantization is not None:
+        meta["radar_odom.quantization"] = json.dumps(quantization, sort_keys=True)
     unknown = sorted(set(meta) - set(KEYS))
     if unknown:  # a key added to the writer must be added to the schema first
         raise ValueError(f"metadata keys {unknown} are not in model_file.SCHEMA")
