@@ -208,6 +208,50 @@ def test_polar_rotation_keeps_yaw_zero_exact():
     assert torch.allclose(rotated, bilinear.rotate(feats, indices), atol=0.1 * float(feats.max()))
 
 
+def _rolled_reference(rot: PolarRotator, images, shifts):
+    """The rotation as first written: a polar grid, K rolled and zero-padded copies, one
+    bilinear table on them (the layout `PolarRotator` now avoids, for speed)."""
+    import torch.nn.functional as F
+
+    from radar_odom_export.correlation import bilinear_table, gather_lerp
+
+    w, a, r, o = rot.width_px, rot.azimuths, rot.radii, rot.oversample
+    c = (w - 1) / 2
+    phi = torch.arange(a, dtype=torch.float32) * rot.bin_rad
+    rho = torch.arange(r, dtype=torch.float32) * rot.radial_step_px
+    index, fr, fc = bilinear_table(c - rho[None] * torch.cos(phi)[:, None],
+                                   c + rho[None] * torch.sin(phi)[:, None], w, w)
+    flat = F.pad(images, (1, 2, 1, 2)).reshape(images.shape[0], -1)
+    polar = gather_lerp(flat, index.reshape(1, -1).expand(flat.shape[0], -1), fr.reshape(1, -1),
+                        fc.reshape(1, -1), w + 3).reshape(-1, a, r)
+    _, (az, rad) = rot._tables(torch.float32)
+    index, fr, fc = bilinear_table(az, rad, a + 1, r)
+    out = []
+    for b in range(images.shape[0]):
+        for s in shifts[b].tolist():
+            rolled = polar[b].roll(o * s, dims=0)  # row j: azimuth j − s (in polar rows)
+            rolled = torch.cat([rolled, rolled[:1]])  # and the wrap-around row
+            src = F.pad(rolled, (1, 2, 1, 2)).reshape(1, -1)
+            out.append(gather_lerp(src, index.reshape(1, -1), fr.reshape(1, -1), fc.reshape(1, -1), r + 3))
+    return torch.cat(out).reshape(*shifts.shape, w, w)
+
+
+def test_polar_rotation_paths_equal_the_rolled_copies_exactly():
+    """The wrapped padded grid read at row offsets (general shifts), as one block (a band of
+    consecutive shifts) and with constant shifts gives the very floats of rolling copies."""
+    gen = torch.Generator().manual_seed(3)
+    rot = PolarRotator(32, math.radians(2), 12.0, 6)
+    images = torch.rand(2, 32, 32, generator=gen)
+    shifts = torch.tensor([[-6, -1, 0, 4, 6], [3, 4, 5, 6, -6]])
+    ref = _rolled_reference(rot, images, shifts)
+    assert torch.equal(rot(images, shifts), ref)
+    band = torch.tensor([[-6, -5, -4], [4, 5, 6]])
+    assert torch.equal(rot.rotate_band(images, band[:, -1], 3), _rolled_reference(rot, images, band))
+    fixed = [-6, -2, 0, 2, 6]
+    ref = _rolled_reference(rot, images, torch.tensor([fixed, fixed]))
+    assert torch.allclose(rot.rotate_constant(images, fixed), ref, atol=1e-6)
+
+
 def test_a_stray_coarse_pick_still_finds_the_straight_ahead_match():
     """Yaw 0 is always scored (from the new state's spectrum): a band far from the truth
     cannot hide a straight-ahead match."""

@@ -106,6 +106,48 @@ def rotate_images(images: torch.Tensor, grids: torch.Tensor) -> torch.Tensor:
     return rotated.transpose(0, 1)
 
 
+def bilinear_table(rows: torch.Tensor, cols: torch.Tensor, height: int, width: int):
+    """Where samples at pixel positions (rows, cols) read a source [height, width] padded with
+    zeros by 1 px before and 2 px after on both axes: (flat index of the top-left neighbour
+    int64, row fraction, column fraction). Positions outside clamp into the zero border.
+
+    Written with plain tensor ops so that, on constant positions, the exporter or onnxruntime
+    folds the table (the file stays small); `gather_lerp` samples with it.
+    """
+    rows = rows.clamp(-1.0, float(height))
+    cols = cols.clamp(-1.0, float(width))
+    r0, c0 = torch.floor(rows), torch.floor(cols)
+    index = ((r0 + 1.0) * (width + 3) + (c0 + 1.0)).to(torch.int64)
+    return index, rows - r0, cols - c0
+
+
+def gather_lerp(flat: torch.Tensor, index: torch.Tensor, fr: torch.Tensor, fc: torch.Tensor,
+                stride: int, source_differences: bool = False) -> torch.Tensor:
+    """Bilinear samples of ``flat`` [N, L] (rows of ``stride`` values, row-major) whose top-left
+    neighbours are at ``index`` int64[N, M], with row and column fractions fr, fc (broadcast
+    against [N, M]): four ``GatherElements`` and the two-level lerp. In onnxruntime this is the
+    cheapest bilinear sampler measured: ``GridSample`` runs on one thread (~70 ns a sample), and a
+    ``Gather`` of packed neighbours (one op instead of four) is 2–6× slower.
+
+    ``source_differences``: take the column neighbours' differences on the source (L values)
+    and gather them, instead of subtracting gathered pairs (M values each): the same floats,
+    two full-size subtractions fewer, worth it when the samples outnumber the source pixels.
+    """
+    def at(source, offset):
+        return torch.gather(source, 1, index + offset if offset else index)
+
+    if source_differences:
+        diff = flat[:, 1:] - flat[:, :-1]  # diff[i] = flat[i + 1] − flat[i]
+        top = at(flat, 0) + fc * at(diff, 0)
+        bottom = at(flat, stride) + fc * at(diff, stride)
+    else:
+        top = at(flat, 0)
+        top = top + fc * (at(flat, 1) - top)
+        bottom = at(flat, stride)
+        bottom = bottom + fc * (at(flat, stride + 1) - bottom)
+    return top + fr * (bottom - top)
+
+
 class Rotator(nn.Module):
     """Rotates feature images by every yaw candidate with precomputed sampling grids.
 

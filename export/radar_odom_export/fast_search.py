@@ -27,8 +27,12 @@ polar coordinates, so the image is resampled once onto a polar grid (two rows pe
 a radius every 0.5 px: oversampled so that the round trip blurs about as much as one bilinear
 rotation), rolled by whole rows for each candidate and resampled back with one table shared by
 every candidate; both resamplings are bilinear ``GatherElements`` with constant tables computed
-in the graph (folded by onnxruntime at session start). Yaw 0 uses the image itself, exactly as
-the exhaustive step's `Rotator` does. ``rotation="bilinear"`` keeps ``grid_sample``.
+in the graph (folded by onnxruntime at session start). The first one writes the polar grid
+already wrapped and zero-padded, and the band (consecutive yaws) reads one block of whole rows
+of it (a ``Gather`` whose start is the only data-dependent index), so the second resampling's
+tables are constant too, and no rolled copies are made (3.5× less gather time than K rolled
+copies, whose random reads missed the cache). Yaw 0 uses the image itself, exactly as the
+exhaustive step's `Rotator` does. ``rotation="bilinear"`` keeps ``grid_sample``.
 
 **Factored DFT** (`FactoredSpectrum`). A matmul DFT of W points costs W² per transform (the
 export cannot use ``DFT`` nodes). With ``W = P·Q`` the four-step (Cooley–Tukey) factorisation
@@ -59,7 +63,7 @@ from torch import nn
 
 from radar_odom.profiles import GridProfile
 
-from .correlation import rotate_images, rotation_grids
+from .correlation import bilinear_table, gather_lerp, rotate_images, rotation_grids
 from .dft import FactoredSpectrum, LowResImage, WindowedInverse
 from .softargmax import candidate_weights, parabolic_peak, peak_window, pose_window, windowed_weights
 
@@ -190,39 +194,6 @@ class CoarseYawSelector(nn.Module):
         return self.indices[best]
 
 
-def _bilinear_table(rows: torch.Tensor, cols: torch.Tensor, height: int, width: int):
-    """Where samples at pixel positions (rows, cols) read a source [height, width] padded with
-    zeros by 1 px before and 2 px after on both axes: (flat index of the top-left neighbour
-    int64, row fraction, column fraction). Positions outside clamp into the zero border."""
-    rows = rows.clamp(-1.0, float(height))
-    cols = cols.clamp(-1.0, float(width))
-    r0, c0 = torch.floor(rows), torch.floor(cols)
-    index = ((r0 + 1.0) * (width + 3) + (c0 + 1.0)).to(torch.int64)
-    return index, rows - r0, cols - c0
-
-
-def _bilinear_sample(source: torch.Tensor, table, width: int) -> torch.Tensor:
-    """source [N, H, width] sampled at a `_bilinear_table` [M] (same for every n) → [N, M].
-
-    Four ``GatherElements`` and two-level linear interpolation; onnxruntime's ``GridSample``
-    is single-threaded and several times slower, and plain ``Gather`` on scalars is slower still.
-    """
-    index, fr, fc = table
-    n = source.shape[0]
-    flat = F.pad(source, (1, 2, 1, 2)).reshape(n, -1)
-    stride = width + 3
-    index = index.reshape(1, -1).expand(n, -1)
-
-    def at(offset):
-        return torch.gather(flat, 1, index + offset if offset else index)
-
-    top = at(0)
-    top = top + fc.reshape(1, -1) * (at(1) - top)
-    bottom = at(stride)
-    bottom = bottom + fc.reshape(1, -1) * (at(stride + 1) - bottom)
-    return top + fr.reshape(1, -1) * (bottom - top)
-
-
 class PolarRotator(nn.Module):
     """Rotate images by whole yaw steps through one shared polar resampling.
 
@@ -235,6 +206,15 @@ class PolarRotator(nn.Module):
     onnxruntime at session start, so the file stays small. Both resamplings are bilinear with
     zeros outside; the result differs from direct bilinear rotation (`correlation.rotate_images`) by the
     second interpolation, a slight blur (the accuracy is measured in benchmarks/).
+
+    Layout (for speed in onnxruntime; the numbers are those of rolling and zero-padding the
+    polar grid): the first resampling writes the *wrapped, padded* grid ``[A + 2m + 1, R + 3]``
+    directly (row ``m + j`` is azimuth j, wrapped, for j = −m..A + m; column 0 and the last two
+    are the zero padding the second resampling's border needs, read from the source's zero
+    border), and the second one reads every rotation from that one grid: the roll is a row
+    offset folded into a constant table (`rotate_constant`), added to the index (`forward`,
+    any shifts) or, for consecutive shifts (`rotate_band`, the fast step's band), the start of
+    one block of whole rows, the tables staying constant. No rolled copies, no ``Pad``/``Concat``.
     """
 
     def __init__(self, width_px: int, step_rad: float, radius_px: float, max_shift: int,
@@ -253,13 +233,23 @@ class PolarRotator(nn.Module):
         self.max_shift = int(max_shift) * self.oversample  # in polar rows
 
     def _tables(self, dtype):
-        w, a, r = self.width_px, self.azimuths, self.radii
+        """(the first resampling's table onto the wrapped padded grid, the second's (Cartesian
+        pixels' azimuth row, radius column) [W·W])."""
+        w, a, r, m = self.width_px, self.azimuths, self.radii, self.max_shift
         c_w = (w - 1) / 2
-        phi = torch.arange(a, dtype=dtype) * self.bin_rad
+        # wrapped rows: azimuth bins A − m..A − 1, 0..A − 1, 0..m (torch.cat of the bins' angles)
+        bins = torch.arange(a, dtype=dtype)
+        phi = torch.cat([bins[a - m:], bins, bins[: m + 1]]) * self.bin_rad
         rho = torch.arange(r, dtype=dtype) * self.radial_step_px
         # polar sample (rho, phi) sits at x = rho·cos φ (up the rows), y = rho·sin φ (columns)
-        to_polar = _bilinear_table(c_w - rho[None, :] * torch.cos(phi)[:, None],
-                                   c_w + rho[None, :] * torch.sin(phi)[:, None], w, w)
+        rows = c_w - rho[None, :] * torch.cos(phi)[:, None]
+        cols = c_w + rho[None, :] * torch.sin(phi)[:, None]
+        # padding columns: a position past the far corner clamps onto the source's zero border
+        # (fractions 0), so they sample exactly 0
+        far = torch.full((phi.shape[0], 1), 2.0 * w, dtype=dtype)
+        rows = torch.cat([far, rows, far, far], dim=1)
+        cols = torch.cat([far, cols, far, far], dim=1)
+        to_polar = bilinear_table(rows, cols, w, w)
         idx = torch.arange(w, dtype=dtype)
         x = (c_w - idx)[:, None].expand(w, w)
         y = (idx - c_w)[None, :].expand(w, w)
@@ -268,38 +258,79 @@ class PolarRotator(nn.Module):
         return to_polar, (az.reshape(-1), torch.sqrt(x * x + y * y).reshape(-1) / self.radial_step_px)
 
     def _wrapped_polar(self, images: torch.Tensor):
-        """images [B, W, W] → polar grid [B, A + 2m + 1, R] whose row m + j is azimuth j
-        (j = −m..A + m, wrapped), and the Cartesian positions (azimuth row, radius) [W·W]."""
-        a, m = self.azimuths, self.max_shift
+        """images [B, W, W] → the wrapped padded polar grid flattened [B, (A + 2m + 1)·(R + 3)]
+        (class docstring), and the second resampling's table (`bilinear_table` on the padded
+        rolled grid [A + 1, R]: index int64[W·W], fractions float[W·W])."""
+        a = self.azimuths
         to_polar, (az, rho) = self._tables(images.dtype)
-        polar = _bilinear_sample(images, to_polar, self.width_px).reshape(-1, a, self.radii)
-        return torch.cat([polar[:, a - m:], polar, polar[:, : m + 1]], dim=1), az, rho
+        b, w = images.shape[0], self.width_px
+        flat = F.pad(images, (1, 2, 1, 2)).reshape(b, -1)
+        index, fr, fc = to_polar
+        wrapped = gather_lerp(flat, index.reshape(1, -1).expand(b, -1), fr.reshape(1, -1),
+                               fc.reshape(1, -1), w + 3, source_differences=True)
+        return wrapped, bilinear_table(az, rho, a + 1, self.radii)
+
+    def _rotate(self, wrapped: torch.Tensor, index: torch.Tensor, fr: torch.Tensor, fc: torch.Tensor):
+        """Samples of the wrapped grid [B, L] at a table on it (index int64[B or 1, M] into the
+        grid *with* a zero row before it, as `bilinear_table` gives, fractions [1, M]) → [B, M]."""
+        stride = self.radii + 3
+        index = index - stride  # no zero row before the wrapped grid: it is never read
+        if index.shape[0] != wrapped.shape[0]:
+            index = index.expand(wrapped.shape[0], -1)
+        return gather_lerp(wrapped, index, fr, fc, stride)
 
     def forward(self, images: torch.Tensor, shifts: torch.Tensor) -> torch.Tensor:
         """images [B, W, W], shifts int64[B, K] (yaw = shift·step) → [B, K, W, W]."""
         b, k = shifts.shape
-        w, a, m, r = self.width_px, self.azimuths, self.max_shift, self.radii
-        wrapped, az, rho = self._wrapped_polar(images)
-        # rotation by s: row j of the rolled grid is azimuth j − s, rows m − s .. m − s + A
-        rows = (m - self.oversample * shifts).reshape(b, k, 1) + torch.arange(a + 1, device=shifts.device)
-        rows = rows + torch.arange(b, device=shifts.device).reshape(b, 1, 1) * wrapped.shape[1]
-        rolled = wrapped.reshape(-1, r).index_select(0, rows.reshape(-1))
-        table = _bilinear_table(az, rho, a + 1, r)
-        out = _bilinear_sample(rolled.reshape(b * k, a + 1, r), table, r)
+        w = self.width_px
+        wrapped, (index, fr, fc) = self._wrapped_polar(images)
+        # rotation by s reads the rolled grid whose row j is wrapped row m − oversample·s + j:
+        # the (data-dependent) roll is a row offset added to the shared table's index
+        rows = (self.max_shift - self.oversample * shifts) * (self.radii + 3)  # [B, K]
+        index = (index.reshape(1, 1, -1) + rows.unsqueeze(-1)).reshape(b, -1)
+        out = self._rotate(wrapped, index, fr.reshape(1, -1).repeat(1, k), fc.reshape(1, -1).repeat(1, k))
         return out.reshape(b, k, w, w)
+
+    def rotate_band(self, images: torch.Tensor, last_shift: torch.Tensor, count: int) -> torch.Tensor:
+        """images [B, W, W] rotated by the ``count`` consecutive shifts ending at ``last_shift``
+        int64[B] (``last_shift − count + 1 .. last_shift``) → [B, count, W, W]; equal to
+        ``forward`` with those shifts.
+
+        The data-dependent roll is one row ``Gather`` (a contiguous block of the wrapped grid,
+        whole rows) and every bilinear table is constant (folded at session start), so no index
+        arithmetic runs per sweep.
+        """
+        b, w, r = images.shape[0], self.width_px, self.radii
+        stride, o = r + 3, self.oversample
+        rows = self.azimuths + o * (count - 1) + 1  # the block's rows that the band reads
+        wrapped, (index, fr, fc) = self._wrapped_polar(images)
+        total = wrapped.shape[1] // stride
+        # band item j (shift last − (count − 1 − j)) reads wrapped rows from
+        # m − o·last + o·(count − 1 − j) on: the block starts at first = m − o·last (0..2m, so
+        # the block's last row, first + o·(count − 1) + A, is at most A + 2m: inside)
+        first = self.max_shift - o * last_shift  # [B]
+        pick = first.reshape(b, 1) + torch.arange(rows, device=images.device)
+        pick = pick + torch.arange(b, device=images.device).reshape(b, 1) * total
+        block = wrapped.reshape(-1, stride).index_select(0, pick.reshape(-1)).reshape(b, -1)
+        offsets = o * (count - 1 - torch.arange(count, device=images.device)) * stride  # [count]
+        index = (index.reshape(1, -1) + offsets.reshape(-1, 1)).reshape(1, -1)
+        out = self._rotate(block, index, fr.reshape(1, -1).repeat(1, count), fc.reshape(1, -1).repeat(1, count))
+        return out.reshape(b, count, w, w)
 
     def rotate_constant(self, images: torch.Tensor, shifts) -> torch.Tensor:
         """images [B, W, W] rotated by fixed shifts (a list of ints) → [B, K, W, W].
 
         With fixed shifts the roll folds into the sampling table (constant, folded at session
-        start), so no rolled copies of the polar grid are made.
+        start).
         """
         w, m, r = self.width_px, self.max_shift, self.radii
-        wrapped, az, rho = self._wrapped_polar(images)
+        wrapped, _ = self._wrapped_polar(images)
+        _, (az, rho) = self._tables(images.dtype)
         offsets = torch.tensor([m - self.oversample * int(s) for s in shifts], dtype=images.dtype)
-        table = _bilinear_table(az.reshape(1, -1) + offsets.reshape(-1, 1),
-                                rho.reshape(1, -1).expand(len(shifts), -1), wrapped.shape[1], r)
-        out = _bilinear_sample(wrapped, table, r)
+        index, fr, fc = bilinear_table(az.reshape(1, -1) + offsets.reshape(-1, 1),
+                                        rho.reshape(1, -1).expand(len(shifts), -1),
+                                        self.azimuths + 2 * m + 1, r)
+        out = self._rotate(wrapped, index.reshape(1, -1), fr.reshape(1, -1), fc.reshape(1, -1))
         return out.reshape(images.shape[0], len(shifts), w, w)
 
 
@@ -373,13 +404,17 @@ class FastStreamStep(nn.Module):
         return pose, cov, new_state
 
     def rotate(self, features: torch.Tensor, indices: torch.Tensor) -> torch.Tensor:
-        """features [B, W, W] rotated by the yaw candidates ``indices`` int64[B, Kb] → [B, Kb, W, W]."""
+        """features [B, W, W] rotated by the yaw candidates ``indices`` int64[B, Kb] → [B, Kb, W, W].
+
+        ``indices`` must be consecutive in each row (a band, as `band_indices` gives): the polar
+        rotation reads them as one block (`PolarRotator.rotate_band`)."""
         if self.rotator is None:
             b, k = indices.shape  # one set of yaws per batch item
             grids = rotation_grids(self.yaw_table[indices].reshape(-1), self.width_px)
             return rotate_images(features, grids.reshape(b, k, *grids.shape[1:]))
         shifts = indices - self.num_rotations // 2
-        rotated = self.rotator(features, shifts)
+        # the band is consecutive (`band_indices`): one block of the polar grid, constant tables
+        rotated = self.rotator.rotate_band(features, shifts[:, -1], shifts.shape[1])
         # yaw 0 is the image itself, exactly as in the exhaustive step (`Rotator`): the polar
         # round trip would blur it like every other yaw and move weight off the peak
         return torch.where((shifts == 0)[:, :, None, None], features.unsqueeze(1), rotated)

@@ -80,11 +80,12 @@ def _interpolate_rings(profile: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
     u = u.clamp(0.0, float(r - 1))
     lo = u.floor().clamp(max=float(r - 2))
     frac = u - lo
-    # GatherElements (torch.gather): onnxruntime's Gather (index_select) is 2–3× slower here
+    # GatherElements (torch.gather): onnxruntime's Gather (index_select) is 2–3× slower here.
+    # The ring-to-ring differences are taken first (R values, not one per pixel): the same
+    # floats as b − a per pixel, one full-size op fewer
     lo = lo.to(torch.int64).unsqueeze(0).expand(profile.shape[0], -1)
-    a = torch.gather(profile, 1, lo)
-    b = torch.gather(profile, 1, lo + 1)
-    return a + frac * (b - a)
+    slope = profile[:, 1:] - profile[:, :-1]  # [B, R − 1]
+    return torch.gather(profile, 1, lo) + frac * torch.gather(slope, 1, lo)
 
 
 class CartesianNormaliser(nn.Module):
@@ -108,11 +109,11 @@ class CartesianNormaliser(nn.Module):
         self.num_rings = max(2, int(math.floor(self.radius_px / NORM_RING_STEP_PX)) + 1)
         c_w = (self.width_px - 1) / 2
         # ring sample (azimuth φ, radius ρ) at x = ρ·cos φ (up the rows), y = ρ·sin φ (columns);
-        # grid_sample (align_corners=True) wants (column, row) normalised to ±1 at pixel centres
         phi = 2 * np.pi * np.arange(NORM_AZIMUTHS) / NORM_AZIMUTHS
         rho = np.arange(self.num_rings) * NORM_RING_STEP_PX
         rows = c_w - rho[:, None] * np.cos(phi)[None, :]
         cols = c_w + rho[:, None] * np.sin(phi)[None, :]
+        # grid_sample (align_corners=True) wants (column, row) normalised to ±1 at pixel centres;
         # [R, A, 2]: azimuth last, so the quantile's TopK runs along the innermost axis
         grid = np.stack([(cols - c_w) / c_w, (rows - c_w) / c_w], axis=-1)
         self.register_buffer("ring_grid", torch.from_numpy(grid.astype(np.float32))[None],
@@ -132,7 +133,9 @@ class CartesianNormaliser(nn.Module):
 
     def ring_profile(self, z: torch.Tensor) -> torch.Tensor:
         """float[B, R]: the floor quantile over azimuth of each ring of z float[B, W, W]."""
-        # the batch rides in the channel axis: one grid, one grid_sample call for all sweeps
+        # the batch rides in the channel axis: one grid, one grid_sample call for all sweeps.
+        # (`correlation.gather_lerp` would be ~0.3 ms faster in onnxruntime at 256 px, but it
+        # rounds differently, and the shipped models' poses moved by up to 1e-4 m with it)
         rings = F.grid_sample(z.unsqueeze(0), self.ring_grid, mode="bilinear", padding_mode="zeros",
                               align_corners=True)[0]  # [B, R, A]
         return order_statistic(rings, self.floor_quantile, dim=-1)
