@@ -8,13 +8,13 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+from test_fast_search import pair_with_pose, tiny_profile  # noqa: E402
+
 from radar_odom_export.correlation import candidate_poses  # noqa: E402
 from radar_odom_export.fast_search import FastSearchSettings, FastStreamStep  # noqa: E402
 from radar_odom_export.model import MaskedCorrelator  # noqa: E402
 from radar_odom_export.onnx_export import export_fast  # noqa: E402
 from radar_odom_export.softargmax import peak_window, soft_argmax  # noqa: E402
-
-from test_fast_search import pair_with_pose, tiny_profile  # noqa: E402
 
 pytestmark = pytest.mark.torch
 
