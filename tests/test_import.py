@@ -34,3 +34,79 @@ def test_pretrained_is_the_function_and_no_module_shadows_it():
         "assert callable(pretrained)\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+# ------------------------------------------------------------------ no import cycles (issue 13)
+def _module_graph() -> dict[str, set[str]]:
+    """Project module -> project modules it imports anywhere in its file (function-level imports
+    included: a lazy import that closes a cycle is still a cycle), from the source text."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    files = {}
+    for pkg, folder in (("radar_odom", root / "sdk" / "radar_odom"),
+                        ("radar_odom_export", root / "export" / "radar_odom_export")):
+        for f in folder.rglob("*.py"):
+            parts = [pkg, *f.relative_to(folder).with_suffix("").parts]
+            files[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = f
+    graph = {}
+    for mod, f in files.items():
+        deps = set()
+        for node in ast.walk(ast.parse(f.read_text())):
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                base = mod.split(".") if f.name == "__init__.py" else mod.split(".")[:-1]
+                base = base[: len(base) - node.level + 1] if node.level else []
+                prefix = ".".join(base + ([node.module] if node.module else []))
+                names = [prefix] + [f"{prefix}.{a.name}" for a in node.names]
+            else:
+                continue
+            # importing a submodule runs its parent packages first: those edges are not cycles
+            deps.update(n for n in names if n in files and n != mod and not mod.startswith(n + "."))
+        graph[mod] = deps
+    return graph
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan)."""
+    index, low, stack, on, out = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in graph[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in graph:
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_cycle_finder_finds_a_cycle():
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert _cycles({"a": {"b"}, "b": set()}) == []
+
+
+def test_no_import_cycles_in_the_project():
+    graph = _module_graph()
+    assert "radar_odom_export.onnx_export" in graph and "radar_odom.odometer" in graph
+    assert "radar_odom_export.fast_search" in graph["radar_odom_export.onnx_export"]
+    assert _cycles(graph) == []
