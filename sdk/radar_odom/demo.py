@@ -37,7 +37,9 @@ def run_demo(frames: int = DEFAULT_FRAMES, model: str | None = None, seed: int =
                           title=f"radar-odom demo: {Path(model_path).stem} on simulated {scenario} drive (seed {seed})")
     echo(f"model {Path(model_path).name}: {len(result.estimates)} estimates "
          f"({result.num_degenerate} degenerate), {1e3 * result.seconds_per_step:.1f} ms per sweep "
-         f"(decode + polar->Cartesian + graph)")
+         f"(wall time: decode + polar->Cartesian on a worker thread, the graph on this one)")
+    if result.throughput is not None:
+        echo(f"pace: {result.throughput.format()}")
     echo(format_metrics(result.metrics, result.step_errors))
     for kind, path in result.files.items():
         echo(f"{kind}: {path}")

@@ -173,7 +173,8 @@ def evaluate(gt_poses: np.ndarray, est_poses: np.ndarray, estimates=None,
         step_errors["steps_without_gt"] = int((~ok).sum())
     if ok.any():
         errors = relative_pose_errors(gt_rel[ok], est_rel[ok])
-        step_errors.update({k: v for k, v in errors.items() if not isinstance(v, np.ndarray)})
+        # "steps" already counts them (relative_pose_errors' "num_steps" would say it twice)
+        step_errors.update({k: v for k, v in errors.items() if not isinstance(v, np.ndarray) and k != "num_steps"})
     if estimates is not None and len(estimates) == len(gt_rel):
         good = ok & np.array([not e.degenerate for e in estimates], dtype=bool)
         if good.any():
