@@ -235,32 +235,10 @@ def test_profile_command_end_to_end(tiny_model, tmp_path, capsys):
     from radar_odom.cli import main
 
     out = tmp_path / "prof"
-    assert (
-        main(
-            [
-                "profile",
-                "--models",
-                str(tiny_model),
-                "--profiles",
-                "--steps",
-                "6",
-                "--warmup",
-                "1",
-                "--reference-steps",
-                "2",
-                "--operator-steps",
-                "2",
-                "--rss-steps",
-                "0",
-                "--file-sweeps",
-                "6",
-                "-o",
-                str(out),
-                "--no-progress",
-            ]
-        )
-        == 0
-    )
+    args = ["profile", "--models", str(tiny_model), "--profiles", "--steps", "6", "--warmup", "1",
+            "--reference-steps", "2", "--operator-steps", "2", "--rss-steps", "0", "--file-sweeps", "6",
+            "-o", str(out), "--no-progress"]
+    assert main(args) == 0
     report = json.loads((out / "profile.json").read_text())
     (m,) = report["models"]
     assert m["stages"]["graph"]["n"] == 6 and m["stages"]["step"]["median"] >= m["stages"]["graph"]["median"]

@@ -599,49 +599,15 @@ def test_cli_writes_a_cfar_checkpoint_without_training(recordings, tmp_path, mon
     prof = tmp_path / "tiny.json"
     prof.write_text(json.dumps(asdict(TINY.with_(input_norm="floor-scale"))))
     out = tmp_path / "cfar.pt"
-    assert (
-        main(
-            [
-                "train",
-                *map(str, recordings),
-                "-o",
-                str(out),
-                "--profile",
-                str(prof),
-                "--masking",
-                "cfar",
-                "--batch",
-                "2",
-                "--threads",
-                "1",
-            ]
-        )
-        == 0
-    )
+    args = ["train", *map(str, recordings), "--profile", str(prof), "--masking", "cfar",
+            "--batch", "2", "--threads", "1"]
+    assert main([*args, "-o", str(out)]) == 0
     model, meta = load_checkpoint(out)
     assert meta["masking"] == "cfar" and meta["train"]["steps"] == 0 and model.cfar is not None
     assert meta["profile"].input_norm == "floor-scale"
     # a profile without the normalisation is refused: CFAR thresholds are in normalised units
     prof.write_text(json.dumps(asdict(TINY)))
-    assert (
-        main(
-            [
-                "train",
-                *map(str, recordings),
-                "-o",
-                str(tmp_path / "x.pt"),
-                "--profile",
-                str(prof),
-                "--masking",
-                "cfar",
-                "--batch",
-                "2",
-                "--threads",
-                "1",
-            ]
-        )
-        == 1
-    )
+    assert main([*args, "-o", str(tmp_path / "x.pt")]) == 1
 
 
 def test_cli_commands_need_torch_only_when_run():
