@@ -4,34 +4,26 @@ the reading pipelined on a worker thread and without (the issue-14 target: wall 
 from __future__ import annotations
 
 import tempfile
-import time
 from pathlib import Path
 
-from .sweeps import decode_png, parse_sweep
+from .sweeps import cycled, decode_png, parse_sweep, sweep_period_us
 
 
 def write_recording(pngs: list[bytes], folder, count: int) -> list[Path]:
     """``count`` sweep files named by their first azimuth's time, as an Oxford ``radar/``
     folder holds them; the ``pngs`` are cycled with their timestamps moved on, so the stream is
     continuous (re-encoding costs nothing at run time: only the files are read back)."""
-    from dataclasses import replace
-
     import cv2
-    import numpy as np
 
     from ..formats.oxford import scan_to_image
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     scans = [parse_sweep(decode_png(b)) for b in pngs]
-    period_us = int(np.median(np.diff([s.timestamp_us for s in scans]))) if len(scans) > 1 else 250_000
-    span_us = period_us * len(scans)
+    period_us = sweep_period_us([s.timestamp_us for s in scans])
     paths = []
     for i in range(count):
-        scan = scans[i % len(scans)]
-        shift = (i // len(scans)) * span_us
-        if shift:
-            scan = replace(scan, timestamps_us=scan.timestamps_us + shift)
+        scan = cycled(scans[i % len(scans)], i, len(scans), period_us)
         path = folder / f"{scan.timestamp_us}.png"
         if not cv2.imwrite(str(path), scan_to_image(scan)):
             raise OSError(f"could not write {path}")
@@ -44,7 +36,7 @@ def file_throughput(model_path, pngs: list[bytes], *, sweeps: int = 100, threads
     """`radar_odom.pipeline.throughput` of ``sweeps`` files through a fresh `RadarOdometer`,
     pipelined (``prefetch``) and serial (prefetch 0), as dicts keyed "pipelined" / "serial"."""
     from ..odometer import RadarOdometer
-    from ..pipeline import iter_estimates, throughput
+    from ..pipeline import iter_estimates
 
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -55,10 +47,8 @@ def file_throughput(model_path, pngs: list[bytes], *, sweeps: int = 100, threads
             with iter_estimates(paths[:warmup], odo, prefetch=0) as warm:
                 for _ in warm:
                     pass
-            t0 = time.perf_counter()
             with iter_estimates(paths[warmup:], odo, prefetch=depth) as stream:
                 for _ in stream:
                     pass
-            wall = time.perf_counter() - t0
-            out[label] = throughput(wall, stream.load_seconds, stream.step_seconds).as_dict()
+            out[label] = stream.throughput().as_dict()  # the stream times its own loop
     return out

@@ -5,11 +5,9 @@ import json
 import subprocess
 import sys
 
-import numpy as np
-
 from ..errors import RadarOdomError
 from .stats import peak_rss_mb, rss_mb
-from .sweeps import PROFILE_SEED, decode_png, parse_sweep, simulated_pngs
+from .sweeps import PROFILE_SEED, cycled, decode_png, parse_sweep, simulated_pngs, sweep_period_us
 
 RSS_CHILD = r"""
 import json, sys
@@ -35,20 +33,14 @@ def rss_stream_here(model_path, steps: int, threads: int = 2, every: int = 50, d
     Returns ``{"steps", "samples": [[step, MiB], ...], "peak_mb", "growth_mb"}`` where
     ``growth_mb`` is the RSS change from the first sample after 10 % of the stream to the end.
     """
-    from dataclasses import replace
-
     from ..odometer import RadarOdometer
 
     pngs = simulated_pngs(distinct, seed=PROFILE_SEED + 1)
     odo = RadarOdometer(model_path, threads=threads, max_gap_s=10.0)
-    period_us = int(np.median(np.diff([parse_sweep(decode_png(b)).timestamp_us for b in pngs[:2]]))) or 250_000
+    period_us = sweep_period_us([parse_sweep(decode_png(b)).timestamp_us for b in pngs[:2]])
     samples = []
     for i in range(steps):
-        scan = parse_sweep(decode_png(pngs[i % distinct]))
-        lap = i // distinct
-        if lap:
-            scan = replace(scan, timestamps_us=scan.timestamps_us + lap * distinct * period_us)
-        odo.step(scan)
+        odo.step(cycled(parse_sweep(decode_png(pngs[i % distinct])), i, distinct, period_us))
         if (i + 1) % every == 0 or i == 0:
             samples.append([i + 1, rss_mb()])
     start = next((s for s in samples if s[0] >= steps // 10), samples[0])

@@ -41,3 +41,20 @@ def parse_sweep(img: np.ndarray, source: str = "profile"):
     return scan_from_header_image(img, source, use_valid_column=True,
                                   range_resolution_m=OXFORD_RANGE_RESOLUTION_M, range_offset_m=0.0)
 
+
+
+def sweep_period_us(timestamps_us) -> int:
+    """Median spacing of consecutive sweeps' first-azimuth times (µs); 250 ms (4 Hz) for fewer
+    than two sweeps or no spacing."""
+    if len(timestamps_us) < 2:
+        return 250_000
+    return int(np.median(np.diff(np.asarray(timestamps_us, dtype=np.int64)))) or 250_000
+
+
+def cycled(scan, i: int, distinct: int, period_us: int):
+    """Sweep ``i`` of a stream that cycles ``distinct`` sweeps (``scan`` is sweep ``i % distinct``):
+    its timestamps moved on by the laps completed, so the stream stays continuous."""
+    from dataclasses import replace
+
+    lap = i // distinct
+    return replace(scan, timestamps_us=scan.timestamps_us + lap * distinct * period_us) if lap else scan
