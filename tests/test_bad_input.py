@@ -282,7 +282,7 @@ def test_metadata_schema_refuses_bad_json_missing_keys_and_wrong_types(shipped_m
             ),
             "range_resolution_m",
         ),
-        "form": (edited(shipped_meta, form="both"), "neither 'stream' nor 'pair'"),
+        "form": (edited(shipped_meta, form="both"), "not one of stream, pair, sequence"),
     }
     for _name, (meta, match) in cases.items():
         with pytest.raises(InvalidModelError, match=match):

@@ -13,12 +13,13 @@ from radar_odom_export.correlation import FFTCorrelation  # noqa: E402
 from radar_odom_export.dft import FactoredSpectrum, LowResImage, WindowedInverse, dft_split  # noqa: E402
 from radar_odom_export.fast_search import (  # noqa: E402
     FastSearchSettings,
+    FastSequenceStep,
     FastStreamStep,
     PolarRotator,
     default_settings,
 )
 from radar_odom_export.model import MaskedCorrelator  # noqa: E402
-from radar_odom_export.onnx_export import export_fast  # noqa: E402
+from radar_odom_export.onnx_export import export_fast, export_sequence  # noqa: E402
 
 pytestmark = pytest.mark.torch
 
@@ -283,6 +284,32 @@ def test_batch_items_pick_their_own_bands():
     assert np.allclose(batched.numpy(), np.array(poses), atol=0.3)
 
 
+@pytest.mark.parametrize("masking", ["learned", "raw"])
+def test_sequence_step_equals_the_stream_step_pair_by_pair(masking):
+    """T sweeps in one call give the T − 1 stream steps' poses and covariances (each sweep's own
+    band, the state a stream would carry)."""
+    torch.manual_seed(4)
+    profile = tiny_profile(width_px=64, max_translation_m=6.0, rotation_range_rad=math.radians(6),
+                           rotation_step_rad=math.radians(1), beta_pose=20.0, beta_cov=20.0, near_range_m=0.0)
+    model = MaskedCorrelator(profile, masking=masking).eval()
+    fast = FastStreamStep(model, FastSearchSettings(coarse_factor=2, coarse_stride=2, band_half_width=1))
+    rng = np.random.default_rng(5)
+    # a drive of static blobs: each sweep from a frame moved by its own pose
+    poses = [(rng.uniform(-3, 3), rng.uniform(-3, 3), math.radians(rng.uniform(-4, 4))) for _ in range(4)]
+    sweeps = [pair_with_pose(p, 64, 1.0, seed=7) for p in [(0.0, 0.0, 0.0), *poses]]
+    x = torch.from_numpy(np.stack([cur for _, cur in sweeps]))
+    with torch.no_grad():
+        pose, cov = FastSequenceStep(fast)(x)
+        state = model.initial_state(x[:1])
+        steps = []
+        for k in range(1, len(x)):
+            p, c, state = fast(x[k : k + 1], state)
+            steps.append((p, c))
+    assert pose.shape == (len(x) - 1, 3) and cov.shape == (len(x) - 1, 3, 3)
+    torch.testing.assert_close(pose, torch.cat([p for p, _ in steps]), atol=1e-5, rtol=0)
+    torch.testing.assert_close(cov, torch.cat([c for _, c in steps]), atol=1e-6, rtol=1e-4)
+
+
 def test_bad_settings_and_models_are_refused():
     with pytest.raises(ValueError, match="rotation"):
         FastSearchSettings(rotation="nearest")
@@ -336,3 +363,23 @@ def test_export_has_no_dft_node_and_onnxruntime_matches_torch(exported):
     np.testing.assert_allclose(got["pose"], want[0].numpy(), atol=1e-4)
     np.testing.assert_allclose(got["covariance"], want[1].numpy(), rtol=1e-3, atol=1e-6)
     np.testing.assert_allclose(got["state"], want[2].numpy(), rtol=1e-4, atol=1e-4 * float(want[2].abs().max()))
+
+
+@pytest.mark.slow
+def test_sequence_export_takes_any_sweep_count(exported, tmp_path):
+    """Traced on 3 sweeps and verified on 5 by the exporter; onnxruntime then takes 2 or 7."""
+    from radar_odom.onnx_model import OnnxModel
+
+    model, settings, _ = exported
+    report = export_sequence(model, tmp_path / "seq.onnx", settings)
+    assert report.form == "sequence" and report.max_pose_diff < 1e-3
+    ort_model = OnnxModel(report.path, threads=1)
+    assert ort_model.info.inputs == ("carts",) and ort_model.info.form == "sequence"
+    step = FastSequenceStep(FastStreamStep(model, settings)).eval()
+    for count in (2, 7):
+        x = torch.rand(count, 64, 64) ** 8
+        with torch.no_grad():
+            want = step(x)
+        got = ort_model.run({"carts": x.numpy()})
+        assert got["pose"].shape == (count - 1, 3)
+        np.testing.assert_allclose(got["pose"], want[0].numpy(), atol=1e-4)

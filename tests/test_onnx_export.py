@@ -245,7 +245,13 @@ def test_export_command_writes_the_fast_search_when_asked(tmp_path, capsys):
     assert OnnxModel(exhaustive).info.search is None
     capsys.readouterr()
     assert main(["export", str(ckpt), "--form", "pair", "--search", "fast"]) == 1
-    assert "stream form only" in capsys.readouterr().err
+    assert "stream and sequence forms" in capsys.readouterr().err
+    assert main(["export", str(ckpt), "--form", "sequence", "--search", "exhaustive"]) == 1
+    assert "fast search only; add --search fast" in capsys.readouterr().err
+    seq = tmp_path / "seq.onnx"  # --form sequence alone picks the fast search
+    assert main(["export", str(ckpt), "-o", str(seq), "--form", "sequence"]) == 0
+    info = OnnxModel(seq).info
+    assert info.form == "sequence" and info.search["kind"] == "coarse_to_fine" and info.inputs == ("carts",)
 
 
 def test_export_command_reports_a_bad_checkpoint(tmp_path, capsys):

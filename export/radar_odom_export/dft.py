@@ -330,5 +330,5 @@ class LowResImage(nn.Module):
         lead = spec.shape[:-3]
         w = self.width_px
         t = self.rows @ spec.reshape(*lead, 2 * w, -1)  # [.., (ri r), kc]
-        t = t.reshape(*lead, 2, w, -1).movedim(-3, -2).reshape(*lead, w, -1)  # [.., r, (ri kc)]
+        t = t.reshape(*lead, 2, w, -1).transpose(-3, -2).reshape(*lead, w, -1)  # [.., r, (ri kc)]
         return t @ self.cols

@@ -46,11 +46,13 @@ in a permuted order (`natural_rows`, `natural_cols`) that the windowed inverse
 half-spectrum layout of `MaskedCorrelator` ([B, 2, W, W//2 + 1]), so states are
 interchangeable with the exhaustive step's.
 
-The graph has static shapes and uses MatMul, GatherElements, Gather, ArgMax, elementwise and
-shape ops: no ``DFT``/``STFT`` node, no complex tensor. This module builds the step;
+The graph has static shapes (the sequence form's sweep count aside) and uses MatMul,
+GatherElements, Gather, ArgMax, elementwise and shape ops: no ``DFT``/``STFT`` node, no complex
+tensor. This module builds the step;
 `onnx_export.export_fast` writes it (the file contract of the exhaustive export, stream form, plus
-``radar_odom.search`` metadata). The DFT matrices live in `dft`, the rotation grids in
-`correlation`.
+``radar_odom.search`` metadata); `FastSequenceStep` runs the same match on every consecutive pair
+of T sweeps at once (`onnx_export.export_sequence`, the offline batch form). The DFT matrices live
+in `dft`, the rotation grids in `correlation`.
 """
 from __future__ import annotations
 
@@ -389,6 +391,18 @@ class FastStreamStep(nn.Module):
         features = self.model.sweep_features(cur, cur_mask)  # [B, W, W], support disc cut
         spec = self.spectrum(features)
         new_state = self.spectrum.to_natural(spec)
+        pose, cov = self.match(self.spectrum.from_natural(prev_state), prev_state, features, spec, new_state)
+        return pose, cov, new_state
+
+    def match(self, prev_spec: torch.Tensor, prev_state: torch.Tensor, features: torch.Tensor,
+              spec: torch.Tensor, new_state: torch.Tensor):
+        """(pose [B, 3], covariance [B, 3, 3]) of each current sweep in its previous one's frame.
+
+        The previous sweeps as their spectra in both layouts (``prev_spec``: the factored
+        DFT's order, ``prev_state``: natural, the stream state), the current ones as their
+        features [B, W, W], factored spectra and natural spectra; batch items are independent
+        pairs (`forward`: one stream step; `FastSequenceStep`: consecutive sweeps of a batch).
+        """
         indices = self.band_indices(prev_state, new_state)  # [B, Kb]
         # Yaw 0 is scored as well, from the spectrum already computed for the new state (no extra
         # rotation or DFT): driving straight is the common case, and a coarse pick that strays
@@ -397,11 +411,10 @@ class FastStreamStep(nn.Module):
         zero = torch.full_like(indices[:, :1], self.num_rotations // 2)
         has_zero = (indices == zero).any(dim=1, keepdim=True)  # [B, 1]
         spectra = torch.cat([self.spectrum(self.rotate(features, indices)), spec.unsqueeze(1)], dim=1)
-        volume = self.inverse(self.spectrum.from_natural(prev_state), spectra)  # [B, Kb + 1, N, N]
+        volume = self.inverse(prev_spec, spectra)  # [B, Kb + 1, N, N]
         drop = torch.cat([torch.zeros_like(indices, dtype=torch.bool), has_zero], dim=1)
         volume = volume.masked_fill(drop[:, :, None, None], NO_WEIGHT)
-        pose, cov = self.soft_argmax(volume, self.yaw_table[torch.cat([indices, zero], dim=1)])
-        return pose, cov, new_state
+        return self.soft_argmax(volume, self.yaw_table[torch.cat([indices, zero], dim=1)])
 
     def rotate(self, features: torch.Tensor, indices: torch.Tensor) -> torch.Tensor:
         """features [B, W, W] rotated by the yaw candidates ``indices`` int64[B, Kb] → [B, Kb, W, W].
@@ -430,6 +443,31 @@ class FastStreamStep(nn.Module):
             pose, _ = band_moments(windowed_weights(volume, p.beta_pose, mask), self.offsets_m, yaws)
         _, cov = band_moments(candidate_weights(volume, p.beta_cov).reshape(volume.shape), self.offsets_m, yaws)
         return pose, cov + self.model.cov_floor
+
+
+class FastSequenceStep(nn.Module):
+    """``sweeps [T, ...] → (poses [T − 1, 3], covariances [T − 1, 3, 3])``: every consecutive pair
+    of a batch of sweeps, matched as `FastStreamStep` matches a stream's (same numbers).
+
+    The offline form (``radar_odom.batch``): T sweeps in one call, each masked and transformed
+    once (as in a stream), all T − 1 pairs searched together, so onnxruntime runs a few large
+    operators instead of T − 1 small steps. Pose k is sweep k + 1 in sweep k's frame.
+    """
+
+    def __init__(self, step: FastStreamStep):
+        super().__init__()
+        self.step = step
+
+    @property
+    def profile(self) -> GridProfile:
+        return self.step.profile
+
+    def forward(self, sweeps: torch.Tensor):
+        s = self.step
+        features = s.model.sweep_features(sweeps)  # [T, W, W]
+        spec = s.spectrum(features)
+        natural = s.spectrum.to_natural(spec)
+        return s.match(spec[:-1], natural[:-1], features[1:], spec[1:], natural[1:])
 
 
 def band_moments(weights: torch.Tensor, offsets_m: torch.Tensor, yaws: torch.Tensor):

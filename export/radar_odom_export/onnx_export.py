@@ -11,7 +11,9 @@ What ends up in the file (``radar-odom export model.pt``):
   and ``prev_state`` (single mode: the previous masked sweep's half spectrum [1, 2, W, W/2+1];
   dual mode: the previous sweep), outputs ``pose`` [1, 3], ``covariance`` [1, 3, 3] and
   ``state``; **pair form**: inputs ``prev_cart``, ``cart`` (``prev_polar``, ``polar``),
-  outputs ``pose``, ``covariance``;
+  outputs ``pose``, ``covariance``; **sequence form** (fast search only): input ``carts``
+  [T, W, W] with T left free in the file, outputs ``pose`` [T − 1, 3] and ``covariance``
+  [T − 1, 3, 3], one per consecutive pair (offline batches, ``radar_odom.batch``);
 * ``metadata_props``, written by `radar_odom.model_file.build_metadata` (the schema the runtime
   reads with): profile, form, sweep geometry, names and shapes, masking, training data, versions.
 
@@ -21,6 +23,7 @@ formula as training's precomputed grids); onnxruntime folds them once at session
 
 Every search mode writes through one function, `write_graph` (`export_model`: the exhaustive
 search, stream or pair form; `export_fast`: the coarse-to-fine search of `fast_search`, stream
+form; `export_sequence`: the same search on T consecutive sweeps at once, the offline batch
 form). The graph-building modules (`model`, `correlation`, `dft`, `fast_search`) never import
 this one: they build an ``nn.Module``, this module writes it.
 
@@ -68,7 +71,7 @@ from radar_odom.errors import ExportError, RadarOdomError
 from radar_odom.model_file import DEFAULT_OPSET, build_metadata, io_names
 
 from .correlation import Rotator, make_correlation, rotate_images, rotation_grids
-from .fast_search import FastSearchSettings, FastStreamStep
+from .fast_search import FastSearchSettings, FastSequenceStep, FastStreamStep
 
 __all__ = ["DEFAULT_OPSET", "MAX_BYTES", "ExportError", "ExportReport", "Tolerance", "check_onnx_file",
            "export_checkpoint", "export_fast", "export_model", "write_graph"]
@@ -312,11 +315,19 @@ def _metadata(fields: dict, opset: int, exporter: str) -> dict:
 _QUIET = (DeprecationWarning, FutureWarning, PendingDeprecationWarning)  # API notices, not about the graph
 
 
-def _run_exporter(kind: str, module, inputs, path, input_names, output_names, opset) -> list[str]:
+def _run_exporter(kind: str, module, inputs, path, input_names, output_names, opset,
+                  dynamic_axes: dict | None = None) -> list[str]:
     """One ``torch.onnx.export`` call; returns the warnings it raised that concern the graph
-    (re-issued to the caller as well), dropping the exporters' deprecation notices."""
+    (re-issued to the caller as well), dropping the exporters' deprecation notices.
+    ``dynamic_axes``: ``{tensor name: {axis: symbolic name}}`` for sizes left free in the file."""
     kwargs = dict(input_names=input_names, output_names=output_names, opset_version=opset,
                   dynamo=kind == "dynamo", external_data=False)
+    if dynamic_axes and kind == "dynamo":  # torch.export's form: a Dim per free input axis
+        kwargs["dynamic_shapes"] = tuple(
+            {axis: torch.export.Dim(f"{name}_{axis}", min=2) for axis, name in dynamic_axes.get(n, {}).items()}
+            or None for n in input_names)
+    elif dynamic_axes:
+        kwargs["dynamic_axes"] = dynamic_axes
     if kind == "dynamo":
         kwargs["verbose"] = False
     else:
@@ -343,7 +354,7 @@ def _run_exporter(kind: str, module, inputs, path, input_names, output_names, op
     return kept
 
 
-def _export_with(exporter: str, module, inputs, path, input_names, output_names, opset):
+def _export_with(exporter: str, module, inputs, path, input_names, output_names, opset, dynamic_axes=None):
     """Run ``exporter`` ("auto": dynamo, then TorchScript if the dynamo exporter itself fails);
     returns (the exporter used, notes)."""
     if exporter not in EXPORTERS:
@@ -351,7 +362,8 @@ def _export_with(exporter: str, module, inputs, path, input_names, output_names,
     notes = []
     for kind in (("dynamo", "torchscript") if exporter == "auto" else (exporter,)):
         try:
-            return kind, notes + _run_exporter(kind, module, inputs, path, input_names, output_names, opset)
+            return kind, notes + _run_exporter(kind, module, inputs, path, input_names, output_names, opset,
+                                               dynamic_axes)
         except torch.onnx.errors.OnnxExporterError as exc:  # the exporter's own failure, nothing else
             text = re.sub(r"\x1b\[[0-9;]*m", "", str(exc)).strip()  # the exporter colours its messages
             first = text.splitlines()[0][:300] if text else ""
@@ -408,13 +420,14 @@ def _file_mode(path: Path) -> int:
 def write_graph(module: nn.Module, example_inputs, path, metadata: dict, *, input_names, output_names,
                 exporter: str = "auto", opset: int = DEFAULT_OPSET, verify: bool = True, verify_inputs=None,
                 reference: nn.Module | None = None, tolerance: Tolerance = DEFAULT_TOLERANCE,
-                doc_string: str = "") -> ExportReport:
+                doc_string: str = "", dynamic_axes: dict | None = None) -> ExportReport:
     """Trace ``module`` on ``example_inputs`` and write it to ``path`` as a checked model file.
 
     ``metadata``: the fields of `radar_odom.model_file.build_metadata` but ``opset`` and
     ``exporter`` (`model_fields`), which this fills in. ``verify``: compare onnxruntime with
     ``reference`` (default: ``module``) in torch on ``verify_inputs``, which must differ from the
-    trace inputs. Atomic: all checks run on a temporary file in ``path``'s folder that is then
+    trace inputs. ``dynamic_axes``: sizes left symbolic in the file (the sequence form's sweep
+    count). Atomic: all checks run on a temporary file in ``path``'s folder that is then
     renamed to ``path``; on any failure ``path`` is untouched and the temporary file removed.
     Raises `ExportError` when a check fails (see the module docstring).
     """
@@ -437,7 +450,7 @@ def write_graph(module: nn.Module, example_inputs, path, metadata: dict, *, inpu
     try:
         module = module.eval()
         used, notes = _export_with(exporter, module, tuple(example_inputs), tmp, list(input_names),
-                                   list(output_names), opset)
+                                   list(output_names), opset, dynamic_axes)
         meta = _metadata(metadata, opset, used)
         proto = onnx.load(str(tmp))
         strip_node_metadata(proto)
@@ -520,6 +533,45 @@ def export_fast(model, path, settings: FastSearchSettings | None = None, *, opse
                    f"{m.profile.name}, stream form, fast search {step.settings.label()}")
 
 
+# sweeps traced and verified in the sequence form: different counts, so a graph whose sweep count
+# froze at trace time fails verification instead of reaching a user
+SEQUENCE_TRACE_SWEEPS = 3
+SEQUENCE_VERIFY_SWEEPS = 5
+
+
+def sequence_inputs(model, sweeps: int, seed: int) -> tuple[torch.Tensor]:
+    """``sweeps`` plausible sweeps stacked along axis 0 (as `example_inputs` makes them)."""
+    g = torch.Generator().manual_seed(seed)
+    return (torch.rand((sweeps, *sweep_shape(model)[1:]), generator=g) ** 8,)
+
+
+def export_sequence(model, path, settings: FastSearchSettings | None = None, *, opset: int = DEFAULT_OPSET,
+                    masking: str | None = None, training_data=None, exporter: str = "auto",
+                    verify: bool = True, tolerance: Tolerance = DEFAULT_TOLERANCE) -> ExportReport:
+    """Export ``model`` in the sequence form (`fast_search.FastSequenceStep`, the fast search):
+    input ``carts`` (``polars``) [T, W, W] with T free, outputs ``pose`` [T − 1, 3] and
+    ``covariance`` [T − 1, 3, 3], one per consecutive pair; the metadata and checks of
+    `export_fast` with form ``"sequence"``. Traced on `SEQUENCE_TRACE_SWEEPS` sweeps and
+    verified on `SEQUENCE_VERIFY_SWEEPS`, so a sweep count frozen into the graph fails.
+    The dynamo exporter keeps the sampling tables' computation in the graph (TorchScript folds
+    them into constants: 22 MB at 0.4 m/px, over the size budget).
+    """
+    m = copy.deepcopy(model).cpu().eval()
+    step = FastSequenceStep(FastStreamStep(m, settings)).eval()
+    settings = step.step.settings
+    search = {"kind": "coarse_to_fine", **asdict(settings), "band_rotations": step.step.band}
+    fields = model_fields(m, "sequence", masking, training_data, None, search=search)
+    input_names, output_names = io_names(m.profile, "sequence")
+    axes = {input_names[0]: {0: "sweeps"}, **{name: {0: "pairs"} for name in output_names}}
+    return write_graph(
+        step, sequence_inputs(m, SEQUENCE_TRACE_SWEEPS, TRACE_SEED), path, fields, input_names=input_names,
+        output_names=output_names, exporter=exporter, opset=opset, verify=verify,
+        verify_inputs=sequence_inputs(m, SEQUENCE_VERIFY_SWEEPS, VERIFY_SEED) if verify else None,
+        tolerance=tolerance, dynamic_axes=axes,
+        doc_string=f"radar-odom {radar_odom.__version__}: Masking by Moving radar odometry, profile "
+                   f"{m.profile.name}, sequence form, fast search {settings.label()}")
+
+
 def export_checkpoint(checkpoint, path, *, form: str | None = None, opset: int = DEFAULT_OPSET,
                       verify: bool = True, exporter: str = "auto", search: str = "exhaustive") -> ExportReport:
     """Export a checkpoint written by `radar-odom train` (calibrated β included).
@@ -527,7 +579,8 @@ def export_checkpoint(checkpoint, path, *, form: str | None = None, opset: int =
     ``form`` defaults to ``"stream"`` (in dual mode the stream state is the previous sweep).
     ``search="fast"`` writes the stream form with the coarse-to-fine yaw search of
     `fast_search.FastStreamStep` (default settings for the profile) instead of scoring every yaw
-    candidate; only the stream form has it.
+    candidate; ``form="sequence"`` (fast search only) writes the offline batch form
+    (`export_sequence`).
     The expected sweep geometry is the checkpoint's ``train["sweep_geometry"]`` when recorded,
     else the model's (the CTS350-X / Oxford geometry the simulator also uses).
     """
@@ -535,8 +588,11 @@ def export_checkpoint(checkpoint, path, *, form: str | None = None, opset: int =
 
     if search not in SEARCHES:
         raise ExportError(f"search must be one of {SEARCHES}, got {search!r}")
-    if search == "fast" and (form or "stream") != "stream":
-        raise ExportError("the fast search exists for the stream form only; use --form stream or --search exhaustive")
+    if search == "fast" and (form or "stream") == "pair":
+        raise ExportError("the fast search exists for the stream and sequence forms; use --form stream or "
+                          "--search exhaustive")
+    if form == "sequence" and search != "fast":
+        raise ExportError("the sequence form searches with the fast search only; add --search fast")
     model, meta = load_checkpoint(checkpoint, dft="fft")
     geometry = meta.get("train", {}).get("sweep_geometry")
     if geometry and model.to_cartesian is None:
@@ -547,6 +603,8 @@ def export_checkpoint(checkpoint, path, *, form: str | None = None, opset: int =
     if "calibration" in meta:
         training["calibration"] = meta["calibration"]
     common = dict(opset=opset, masking=meta["masking"], training_data=training, exporter=exporter, verify=verify)
+    if form == "sequence":
+        return export_sequence(model, path, **common)
     if search == "fast":
         return export_fast(model, path, **common)
     return export_model(model, path, form=form or "stream", **common)

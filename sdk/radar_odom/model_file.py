@@ -10,14 +10,16 @@ The keys (`SCHEMA`; required: always, or for stream-form / polar models only):
 - ``radar_odom.format`` (text, required): `FORMAT`.
 - ``radar_odom.profile`` (JSON object, required): the `GridProfile` (`GridProfile.to_metadata`).
 - ``radar_odom.form`` (text, required): ``"stream"`` (inputs: current sweep + previous state;
-  outputs: pose, covariance, state) or ``"pair"`` (inputs: previous and current sweep; outputs:
-  pose, covariance).
+  outputs: pose, covariance, state), ``"pair"`` (inputs: previous and current sweep; outputs:
+  pose, covariance) or ``"sequence"`` (input: T consecutive sweeps, T free in the file, at least
+  2; outputs: pose [T − 1, 3] and covariance [T − 1, 3, 3], one per consecutive pair: the
+  offline batch form, ``radar_odom.batch``).
 - ``radar_odom.sweep_geometry`` (JSON object, required): ``{num_azimuths, num_bins,
   range_resolution_m, range_offset_m}`` of the sweeps the model was trained on.
 - ``radar_odom.inputs`` / ``radar_odom.outputs`` (JSON arrays, required): tensor names, in
   graph order.
 - ``radar_odom.input_shape`` (JSON array, required): shape of one sweep input (``[1, W, W]``
-  Cartesian or ``[1, A, B']`` polar).
+  Cartesian or ``[1, A, B']`` polar; the sequence form's input is T of them along axis 0).
 - ``radar_odom.state_shape`` (JSON array, required for the stream form): shape of the stream
   state (single mode: the half spectrum ``[1, 2, W, W//2 + 1]``; dual mode: the sweep input's).
 - ``radar_odom.polar_input`` (JSON object, required for polar models): ``{num_bins,
@@ -54,7 +56,7 @@ from .errors import InvalidModelError, ModelMismatchError
 from .profiles import GridProfile
 
 FORMAT = "radar-odom-onnx/1"
-FORMS = ("stream", "pair")
+FORMS = ("stream", "pair", "sequence")
 DEFAULT_OPSET = 18  # the ONNX opset exports write unless asked for another (CLI ``--opset``)
 
 
@@ -72,7 +74,7 @@ class MetadataKey:
 SCHEMA: tuple[MetadataKey, ...] = (
     MetadataKey("radar_odom.format", "text", "always", f"the file format, {FORMAT!r}"),
     MetadataKey("radar_odom.profile", "json-object", "always", "the GridProfile"),
-    MetadataKey("radar_odom.form", "text", "always", "'stream' or 'pair'"),
+    MetadataKey("radar_odom.form", "text", "always", "'stream', 'pair' or 'sequence'"),
     MetadataKey("radar_odom.sweep_geometry", "json-object", "always", "geometry of the training sweeps"),
     MetadataKey("radar_odom.inputs", "json-array", "always", "input tensor names, in graph order"),
     MetadataKey("radar_odom.outputs", "json-array", "always", "output tensor names, in graph order"),
@@ -292,14 +294,14 @@ class ModelInfo:
         v = _Validator(meta, source)
         form = meta["radar_odom.form"]
         if form not in FORMS:
-            raise InvalidModelError(f"{source}: metadata 'radar_odom.form' is {form!r}, neither 'stream' nor 'pair'")
+            raise InvalidModelError(f"{source}: metadata 'radar_odom.form' is {form!r}, not one of {', '.join(FORMS)}")
         profile = v.profile()
         geometry = v.json("radar_odom.sweep_geometry", dict)
         for k in ("num_azimuths", "num_bins"):
             v.check_int(geometry, k, "radar_odom.sweep_geometry", low=2)
         v.check_float(geometry, "range_resolution_m", "radar_odom.sweep_geometry", low=0.0, open_low=True)
         v.check_float(geometry, "range_offset_m", "radar_odom.sweep_geometry")
-        inputs = v.names("radar_odom.inputs", 2)
+        inputs = v.names("radar_odom.inputs", 1 if form == "sequence" else 2)
         outputs = v.names("radar_odom.outputs", None)
         for need in ("pose", "covariance") + (("state",) if form == "stream" else ()):
             if need not in outputs:
@@ -359,6 +361,8 @@ def io_names(profile: GridProfile, form: str) -> tuple[list[str], list[str]]:
         return [sweep, "prev_state"], ["pose", "covariance", "state"]
     if form == "pair":
         return [f"prev_{sweep}", sweep], ["pose", "covariance"]
+    if form == "sequence":
+        return [f"{sweep}s"], ["pose", "covariance"]
     raise ValueError(f"form must be one of {FORMS}, got {form!r}")
 
 
@@ -438,7 +442,15 @@ def check_signature(info: ModelInfo, inputs, outputs, source: str = "model") -> 
             f"{'pose/covariance/state' if info.form == 'stream' else 'pose/covariance'}"
         )
     expect = {info.inputs[0]: info.input_shape}
-    expect[info.inputs[1]] = info.state_shape if info.form == "stream" else info.input_shape
+    if info.form == "sequence":
+        shape = ins[info.inputs[0]][0]
+        if shape and isinstance(shape[0], int):
+            raise InvalidModelError(
+                f"{source}: graph input {info.inputs[0]!r} has a fixed sweep count {shape[0]}; a sequence-form "
+                "model takes any number of sweeps along axis 0 — re-export it with `radar-odom export --form sequence`"
+            )
+    else:
+        expect[info.inputs[1]] = info.state_shape if info.form == "stream" else info.input_shape
     for name, want in expect.items():
         _check_shape(source, "input", name, *ins[name], want)
     if info.form == "stream":

@@ -1,4 +1,4 @@
-"""``radar-odom export model.pt [-o model.onnx] [--form stream|pair] [--search exhaustive|fast] [--opset N]
+"""``radar-odom export model.pt [-o model.onnx] [--form stream|pair|sequence] [--search exhaustive|fast] [--opset N]
 [--exporter auto|dynamo|torchscript] [--quantize int8]``."""
 from __future__ import annotations
 
@@ -14,12 +14,15 @@ def register(subparsers) -> None:
     p.add_argument("checkpoint", help="checkpoint written by `radar-odom train` (.pt), or the name of a "
                                       "shipped one (cart-0.8, cart-0.4): the weights of the pretrained models")
     p.add_argument("-o", "--output", default=None, help="ONNX file to write (default: CHECKPOINT with .onnx)")
-    p.add_argument("--form", choices=("stream", "pair"), default=None,
+    p.add_argument("--form", choices=("stream", "pair", "sequence"), default=None,
                    help="stream: (sweep, previous state) -> (pose, covariance, state), masks each sweep once; "
-                        "pair: (previous sweep, sweep) -> (pose, covariance), for evaluation. Default: stream")
-    p.add_argument("--search", choices=("exhaustive", "fast"), default="exhaustive",
+                        "pair: (previous sweep, sweep) -> (pose, covariance), for evaluation; sequence: T "
+                        "consecutive sweeps -> T-1 poses and covariances in one call, for offline batches "
+                        "(radar_odom.match_sequence; fast search). Default: stream")
+    p.add_argument("--search", choices=("exhaustive", "fast"), default=None,
                    help="exhaustive: score every yaw candidate (the paper's search); fast: coarse-to-fine yaw "
-                        "search, several times faster on a CPU, stream form only (default: exhaustive)")
+                        "search, several times faster on a CPU, stream and sequence forms (default: exhaustive, "
+                        "fast for --form sequence)")
     p.add_argument("--opset", type=int, default=DEFAULT_OPSET,
                    help=f"ONNX opset to write; the written file is checked to have it (default: {DEFAULT_OPSET})")
     p.add_argument("--exporter", choices=("auto", "dynamo", "torchscript"), default="auto",
@@ -59,7 +62,8 @@ def run(args) -> int:
         out = Path(args.checkpoint).with_suffix(".onnx")
     else:
         out = Path(f"{ckpt.stem}.onnx")
-    common = dict(form=args.form, opset=args.opset, verify=not args.no_verify, search=args.search,
+    search = args.search or ("fast" if args.form == "sequence" else "exhaustive")
+    common = dict(form=args.form, opset=args.opset, verify=not args.no_verify, search=search,
                   exporter=args.exporter)
     if args.quantize:
         try:
