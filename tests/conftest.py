@@ -88,6 +88,12 @@ def fast_learned_model() -> Path:
 
 
 @pytest.fixture(scope="session")
+def sequence_model() -> Path:
+    """`fast_learned_model`'s model (same seeded weights) in the sequence form (`radar_odom.batch`)."""
+    return fixture_file("small-fast-seq.onnx")
+
+
+@pytest.fixture(scope="session")
 def foreign_model() -> Path:
     """An ONNX file (Identity graph) that is not a radar-odom model."""
     return fixture_file("foreign.onnx")

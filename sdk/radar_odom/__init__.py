@@ -30,6 +30,7 @@ _LAZY = {
     "read_sequence": "formats",
     "RadarOdometer": "odometer",
     "iter_estimates": "pipeline",
+    "match_sequence": "batch",
     "pretrained": "model_zoo",
     "pretrained_names": "model_zoo",
     "Estimate": "odometer",

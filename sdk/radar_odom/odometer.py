@@ -347,6 +347,11 @@ class RadarOdometer:
         self._prior = MotionPrior(config)
         self._model = model if isinstance(model, OnnxModel) else OnnxModel(model, threads, providers)
         self.info = self._model.info
+        if self.info.form == "sequence":
+            raise ModelMismatchError(
+                f"{self._model.path.name} is a sequence-form model (offline batches of consecutive sweeps); "
+                "use radar_odom.match_sequence with it, or a stream-form model (radar_odom.pretrained) here"
+            )
         self.profile = self.info.profile
         self.on_gap = on_gap
         self._prior_cov = window_covariance(self.profile)
@@ -507,51 +512,10 @@ class RadarOdometer:
 
     # --- pieces ---------------------------------------------------------------------------
     def _check_geometry(self, scan: RadarScan) -> None:
-        """`ModelMismatchError` unless the model can take ``scan`` (see the module docstring)."""
-        if self.profile.input_kind != "polar":
-            need = self.profile.support_radius_m
-            have = scan.max_range_m
-            if have < need - 1e-6:
-                p = self.profile
-                raise ModelMismatchError(
-                    f"{scan.source}: the sweep reaches {have:.2f} m ({scan.num_bins} bins of "
-                    f"{scan.range_resolution_m:g} m), but model {self.path.name} correlates a disc of "
-                    f"radius {need:.2f} m ({p.width_px} px at {p.resolution_m:g} m/px less the "
-                    f"±{p.translation_cells}-cell search window); use a model with a smaller grid "
-                    f"(width_px × resolution_m) or sweeps that reach at least {need:.2f} m"
-                )
-            return
-        want = self.info.sweep_geometry
-        got = scan.geometry
-        bad = [
-            k for k in GEOMETRY_KEYS
-            if not np.isclose(float(got[k]), float(want[k]), rtol=1e-6, atol=1e-9)
-        ]
-        if bad:
-            raise ModelMismatchError(
-                f"{scan.source}: sweep geometry {{{', '.join(f'{k}: {got[k]}' for k in bad)}}} differs from "
-                f"model {self.path.name} ({', '.join(f'{k}: {want[k]}' for k in bad)}); use a model trained "
-                "for this radar, or resample the sweep to the model's geometry"
-            )
+        check_sweep_geometry(scan, self.info, self.path.name)
 
     def _sweep_input(self, scan: RadarScan) -> np.ndarray:
-        """float32[1, W, W] Cartesian image (or [1, A, B'] reduced polar sweep) for the graph."""
-        p = self.profile
-        if p.input_kind == "polar":
-            spec = self.info.polar_input or {}
-            nb, f = int(spec.get("num_bins", scan.num_bins)), int(spec.get("bin_factor", 1))
-            power = scan.power[:, : nb * f]
-            if f > 1:  # mean over groups of f range bins, as the exporter's model was fed
-                power = power.reshape(power.shape[0], nb, f).mean(axis=2)
-            # the graph assumes row a at azimuth 2π·a/A: start from the row nearest 0 rad
-            az = scan.azimuths_rad.astype(np.float64)
-            first = int(np.argmin(np.minimum(az, 2 * np.pi - az)))
-            if first:
-                power = np.roll(power, -first, axis=0)
-            return np.ascontiguousarray(power, dtype=np.float32)[None]
-        # maps are cached by polar_to_cartesian per geometry, so a stream builds them once
-        cart = polar_to_cartesian(scan, p.resolution_m, p.width_px, near_range_m=p.near_range_m)
-        return cart[None]
+        return graph_input(scan, self.info)
 
     def _run_first(self, x: np.ndarray) -> np.ndarray:
         """Reference for a stream's first sweep: its state (stream form) or the input (pair form).
@@ -643,3 +607,54 @@ class RadarOdometer:
     def _append(self, absolute: np.ndarray, ts: int) -> None:
         self._poses.append(absolute)
         self._stamps.append(int(ts))
+
+
+def check_sweep_geometry(scan: RadarScan, info, model_name: str = "the model") -> None:
+    """`ModelMismatchError` unless the model described by ``info`` (a `ModelInfo`) can take
+    ``scan`` (see the module docstring); ``model_name`` is used in the message."""
+    if info.profile.input_kind != "polar":
+        need = info.profile.support_radius_m
+        have = scan.max_range_m
+        if have < need - 1e-6:
+            p = info.profile
+            raise ModelMismatchError(
+                f"{scan.source}: the sweep reaches {have:.2f} m ({scan.num_bins} bins of "
+                f"{scan.range_resolution_m:g} m), but model {model_name} correlates a disc of "
+                f"radius {need:.2f} m ({p.width_px} px at {p.resolution_m:g} m/px less the "
+                f"±{p.translation_cells}-cell search window); use a model with a smaller grid "
+                f"(width_px × resolution_m) or sweeps that reach at least {need:.2f} m"
+            )
+        return
+    want = info.sweep_geometry
+    got = scan.geometry
+    bad = [
+        k for k in GEOMETRY_KEYS
+        if not np.isclose(float(got[k]), float(want[k]), rtol=1e-6, atol=1e-9)
+    ]
+    if bad:
+        raise ModelMismatchError(
+            f"{scan.source}: sweep geometry {{{', '.join(f'{k}: {got[k]}' for k in bad)}}} differs from "
+            f"model {model_name} ({', '.join(f'{k}: {want[k]}' for k in bad)}); use a model trained "
+            "for this radar, or resample the sweep to the model's geometry"
+        )
+
+
+def graph_input(scan: RadarScan, info) -> np.ndarray:
+    """float32[1, W, W] Cartesian image (or [1, A, B'] reduced polar sweep) of ``scan`` for
+    the graph of the model described by ``info`` (a `ModelInfo`)."""
+    p = info.profile
+    if p.input_kind == "polar":
+        spec = info.polar_input or {}
+        nb, f = int(spec.get("num_bins", scan.num_bins)), int(spec.get("bin_factor", 1))
+        power = scan.power[:, : nb * f]
+        if f > 1:  # mean over groups of f range bins, as the exporter's model was fed
+            power = power.reshape(power.shape[0], nb, f).mean(axis=2)
+        # the graph assumes row a at azimuth 2π·a/A: start from the row nearest 0 rad
+        az = scan.azimuths_rad.astype(np.float64)
+        first = int(np.argmin(np.minimum(az, 2 * np.pi - az)))
+        if first:
+            power = np.roll(power, -first, axis=0)
+        return np.ascontiguousarray(power, dtype=np.float32)[None]
+    # maps are cached by polar_to_cartesian per geometry, so a stream builds them once
+    cart = polar_to_cartesian(scan, p.resolution_m, p.width_px, near_range_m=p.near_range_m)
+    return cart[None]
