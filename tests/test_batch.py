@@ -51,6 +51,12 @@ def test_array_input_matches_scan_input(sequence_model, scans):
     assert x.dtype == np.float32 and x.shape == (FRAMES, *model.info.input_shape[1:])
 
 
+def test_the_progress_bar_changes_nothing(sequence_model, scans):
+    model = OnnxModel(sequence_model, threads=1)
+    a = match_sequence(model, scans, batch=3, progress=True)
+    np.testing.assert_array_equal(a.poses, match_sequence(model, scans, batch=3).poses)
+
+
 def test_a_stream_model_is_refused_with_the_export_command(fast_learned_model, scans):
     with pytest.raises(ModelMismatchError, match="--form sequence"):
         match_sequence(fast_learned_model, scans)

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._progress import progress as progress_bar
 from .errors import ConfigError, ModelMismatchError, StreamError
 from .odometer import MIN_COVERAGE, check_sweep_geometry, graph_input, model_region_m, sweep_problem
 from .onnx_model import OnnxModel
@@ -113,7 +114,7 @@ def match_sequence(model, sweeps: Sequence[RadarScan] | np.ndarray, *, batch: in
         sweeps: RadarScans in time order, or graph inputs float[T, ...] (see `sequence_inputs`).
         batch: pairs per graph call (≥ 1); consecutive calls share one sweep.
         threads: onnxruntime intra-op threads when ``model`` is a path.
-        progress: show a progress bar (tqdm) over the calls.
+        progress: show a progress bar over the calls (tqdm, from the ``cli`` extra; none without it).
     Raises `ModelMismatchError` for a model that is not of the sequence form or sweeps it cannot
     take, `StreamError` for timestamps that do not increase or a degenerate sweep, ValueError
     for fewer than two sweeps or non-finite values, `ConfigError` for a bad ``batch``.
@@ -125,9 +126,7 @@ def match_sequence(model, sweeps: Sequence[RadarScan] | np.ndarray, *, batch: in
     name = m.info.inputs[0]
     starts = range(0, len(x) - 1, int(batch))
     if progress:
-        from tqdm import tqdm
-
-        starts = tqdm(starts, desc="matching", unit="call")
+        starts = progress_bar(starts, total=len(starts), desc="matching", unit="call")
     poses, covs = [], []
     for c in starts:
         out = m.run({name: x[c: c + int(batch) + 1]})
