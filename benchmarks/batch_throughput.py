@@ -2,12 +2,13 @@
 
     python benchmarks/batch_throughput.py                 # the shipped cart-0.8 and cart-0.4; ~3 min
 
-For each shipped model: its sequence form is exported once into ``--workdir`` (needs the export
-extra; an existing file is reused), simulated urban sweeps are made into graph inputs once,
-and then, ``--repeats`` times in turn, the stream graph steps through ``--pairs`` pairs and the
-sequence graph matches the same pairs in calls of each ``--batch`` size. Printed per model and
-batch size: median and p90 over the repeats of ms per pair, pairs/s, and the ratio of medians
-against the stream form measured in the same rounds. Graph time only (inputs prepared before).
+For each shipped model (or checkpoint, whose stream form is exported too): its sequence form is
+exported once into ``--workdir`` (needs the export extra; an existing file is reused), simulated
+urban sweeps are made into graph inputs once, and then, ``--repeats`` times in turn, the stream
+graph steps through ``--pairs`` pairs and the sequence graph matches the same pairs in calls of
+each ``--batch`` size. Printed per model and batch size: median and p90 over the repeats of ms per
+pair, pairs/s, and the ratio of medians against the stream form measured in the same rounds. Graph
+time only (inputs prepared before).
 """
 from __future__ import annotations
 
@@ -27,12 +28,14 @@ def graph_inputs(info, frames: int, seed: int) -> np.ndarray:
     return np.stack([graph_input(f.scan, info)[0] for f in simulate_drive(seed, frames, "urban")])
 
 
-def sequence_file(name: str, workdir: Path) -> Path:
-    path = workdir / f"{name}-seq.onnx"
+def exported(name: str, workdir: Path, form: str) -> Path:
+    """``name`` (a shipped name or a checkpoint .pt) exported with the fast search in ``form``
+    into ``workdir`` (an existing file is reused)."""
+    path = workdir / f"{Path(name).stem}-{'seq' if form == 'sequence' else 'fast'}.onnx"
     if not path.is_file():
         workdir.mkdir(parents=True, exist_ok=True)
-        subprocess.run([sys.executable, "-m", "radar_odom", "export", name, "--form", "sequence", "-o", str(path)],
-                       check=True, stdout=subprocess.DEVNULL)
+        subprocess.run([sys.executable, "-m", "radar_odom", "export", name, "--form", form, "--search", "fast",
+                        "-o", str(path)], check=True, stdout=subprocess.DEVNULL)
     return path
 
 
@@ -56,7 +59,8 @@ def time_sequence(model, x: np.ndarray, batch: int) -> float:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--models", default="cart-0.8,cart-0.4", help="shipped model names")
+    ap.add_argument("--models", default="cart-0.8,cart-0.4",
+                    help="shipped model names, or checkpoints (.pt: both forms are exported into --workdir)")
     ap.add_argument("--batch", default="4,8,16,32", help="pairs per sequence-graph call")
     ap.add_argument("--pairs", type=int, default=64, help="pairs timed per round")
     ap.add_argument("--repeats", type=int, default=7, help="rounds (stream and every batch size each)")
@@ -70,8 +74,11 @@ def main(argv=None) -> int:
     print("| model | form | pairs per call | ms per pair (median / p90) | pairs/s | ratio to stream |")
     print("|---|---|---:|---:|---:|---:|")
     for name in args.models.split(","):
-        stream = OnnxModel(pretrained(name), threads=args.threads)
-        seq = OnnxModel(sequence_file(name, Path(args.workdir)), threads=args.threads)
+        shipped = not name.endswith(".pt")
+        stream_path = pretrained(name) if shipped else exported(name, Path(args.workdir), "stream")
+        stream = OnnxModel(stream_path, threads=args.threads)
+        seq = OnnxModel(exported(name, Path(args.workdir), "sequence"), threads=args.threads)
+        name = Path(name).stem
         x = graph_inputs(stream.info, args.pairs + 1, seed=5000)
         time_stream(stream, x[:4]), time_sequence(seq, x[:9], 8)  # warm-up
         times = {0: []} | {b: [] for b in batches}
