@@ -511,6 +511,11 @@ class FastStreamGraph(nn.Module):
         return self.step(sweep, prev_state)
 
 
+def search_metadata(step: FastStreamStep) -> dict:
+    """The ``radar_odom.search`` metadata of a graph searching like ``step``."""
+    return {"kind": "coarse_to_fine", **asdict(step.settings), "band_rotations": step.band}
+
+
 def export_fast(model, path, settings: FastSearchSettings | None = None, *, opset: int = DEFAULT_OPSET,
                 masking: str | None = None, training_data=None, exporter: str = "auto", verify: bool = True,
                 tolerance: Tolerance = DEFAULT_TOLERANCE) -> ExportReport:
@@ -522,8 +527,7 @@ def export_fast(model, path, settings: FastSearchSettings | None = None, *, opse
     m = copy.deepcopy(model).cpu().eval()
     step = FastStreamStep(m, settings).eval()
     inputs = example_inputs(m, "stream", seed=TRACE_SEED)
-    search = {"kind": "coarse_to_fine", **asdict(step.settings), "band_rotations": step.band}
-    fields = model_fields(m, "stream", masking, training_data, tuple(inputs[1].shape), search=search)
+    fields = model_fields(m, "stream", masking, training_data, tuple(inputs[1].shape), search=search_metadata(step))
     input_names, output_names = io_names(m.profile, "stream")
     return write_graph(
         FastStreamGraph(step), inputs, path, fields, input_names=input_names, output_names=output_names,
@@ -558,9 +562,7 @@ def export_sequence(model, path, settings: FastSearchSettings | None = None, *, 
     """
     m = copy.deepcopy(model).cpu().eval()
     step = FastSequenceStep(FastStreamStep(m, settings)).eval()
-    settings = step.step.settings
-    search = {"kind": "coarse_to_fine", **asdict(settings), "band_rotations": step.step.band}
-    fields = model_fields(m, "sequence", masking, training_data, None, search=search)
+    fields = model_fields(m, "sequence", masking, training_data, None, search=search_metadata(step.step))
     input_names, output_names = io_names(m.profile, "sequence")
     axes = {input_names[0]: {0: "sweeps"}, **{name: {0: "pairs"} for name in output_names}}
     return write_graph(
@@ -569,7 +571,7 @@ def export_sequence(model, path, settings: FastSearchSettings | None = None, *, 
         verify_inputs=sequence_inputs(m, SEQUENCE_VERIFY_SWEEPS, VERIFY_SEED) if verify else None,
         tolerance=tolerance, dynamic_axes=axes,
         doc_string=f"radar-odom {radar_odom.__version__}: Masking by Moving radar odometry, profile "
-                   f"{m.profile.name}, sequence form, fast search {settings.label()}")
+                   f"{m.profile.name}, sequence form, fast search {step.step.settings.label()}")
 
 
 def export_checkpoint(checkpoint, path, *, form: str | None = None, opset: int = DEFAULT_OPSET,
