@@ -19,7 +19,7 @@ from radar_odom_export.fast_search import (  # noqa: E402
     default_settings,
 )
 from radar_odom_export.model import MaskedCorrelator  # noqa: E402
-from radar_odom_export.onnx_export import export_fast, export_sequence  # noqa: E402
+from radar_odom_export.onnx_export import export_fast  # noqa: E402
 
 pytestmark = pytest.mark.torch
 
@@ -364,22 +364,3 @@ def test_export_has_no_dft_node_and_onnxruntime_matches_torch(exported):
     np.testing.assert_allclose(got["covariance"], want[1].numpy(), rtol=1e-3, atol=1e-6)
     np.testing.assert_allclose(got["state"], want[2].numpy(), rtol=1e-4, atol=1e-4 * float(want[2].abs().max()))
 
-
-@pytest.mark.slow
-def test_sequence_export_takes_any_sweep_count(exported, tmp_path):
-    """Traced on 3 sweeps and verified on 5 by the exporter; onnxruntime then takes 2 or 7."""
-    from radar_odom.onnx_model import OnnxModel
-
-    model, settings, _ = exported
-    report = export_sequence(model, tmp_path / "seq.onnx", settings)
-    assert report.form == "sequence" and report.max_pose_diff < 1e-3
-    ort_model = OnnxModel(report.path, threads=1)
-    assert ort_model.info.inputs == ("carts",) and ort_model.info.form == "sequence"
-    step = FastSequenceStep(FastStreamStep(model, settings)).eval()
-    for count in (2, 7):
-        x = torch.rand(count, 64, 64) ** 8
-        with torch.no_grad():
-            want = step(x)
-        got = ort_model.run({"carts": x.numpy()})
-        assert got["pose"].shape == (count - 1, 3)
-        np.testing.assert_allclose(got["pose"], want[0].numpy(), atol=1e-4)
