@@ -40,6 +40,7 @@ DEFAULT_PREFETCH = 2
 NAME_TIME_TOLERANCE_S = 1.0
 WORKER_NAME = "radar-odom-prefetch"
 _JOIN_TIMEOUT_S = 5.0  # a worker stuck in a read is a daemon: it never holds up the exit
+_POLL_S = 0.05  # longest the consumer waits on the queue before it lets Ctrl-C through
 
 
 # ------------------------------------------------------------------------------ measuring
@@ -159,7 +160,12 @@ def prefetched(items, load, depth: int):
     worker.start()
     try:
         while True:
-            msg = q.get()
+            try:
+                # a bounded wait: Python delivers Ctrl-C to the main thread between bytecodes, so a
+                # wait with no timeout would hold it until the worker's next item arrived
+                msg = q.get(timeout=_POLL_S)
+            except queue.Empty:
+                continue
             if msg is _DONE:
                 return
             if isinstance(msg, _Failure):
