@@ -218,17 +218,24 @@ def test_prefetched_keeps_order_hands_errors_over_in_turn_and_stays_bounded():
 
 def test_ctrl_c_while_waiting_for_the_worker_stops_it():
     import _thread
+    import signal
 
     def slow(x):
         time.sleep(0.4)
         return x
 
-    gen = prefetched(range(100), slow, 2)
-    timer = threading.Timer(0.1, _thread.interrupt_main)  # a real Ctrl-C, while the queue is empty
-    timer.start()
-    with pytest.raises(KeyboardInterrupt):
-        next(gen)
-    timer.join()
+    # A process started in the background by a non-interactive shell inherits SIGINT ignored,
+    # and then interrupt_main does nothing: give the test Python's own Ctrl-C handler.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        gen = prefetched(range(100), slow, 2)
+        timer = threading.Timer(0.1, _thread.interrupt_main)  # a Ctrl-C while the queue is empty
+        timer.start()
+        with pytest.raises(KeyboardInterrupt):
+            next(gen)
+        timer.join()
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert not workers_alive()
 
 
