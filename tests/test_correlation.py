@@ -301,5 +301,17 @@ def test_covariance_floor_is_the_cell_quantisation_variance_on_a_one_cell_volume
     torch.testing.assert_close(pose[0], torch.tensor([0.0, 0.5, -0.01]))  # yaws -0.02..0.02
     expected = torch.diag(torch.tensor([0.25 / 12, 0.25 / 12, 1e-4 / 12]))
     torch.testing.assert_close(cov[0], expected)
-    _, cov0 = MaskedCorrelator(p.with_(cov_floor_cells=0.0), masking="raw").pose_from_volume(vol)
+    _, cov0 = MaskedCorrelator(p.with_(cov_floor_cells=0.0, cov_floor_yaw_cells=0.0),
+                               masking="raw").pose_from_volume(vol)
     assert torch.count_nonzero(cov0) == 0
+    # translation and yaw floors apart (in their own cells); the scale multiplies the moment only
+    _, cov1 = MaskedCorrelator(p.with_(cov_floor_cells=0.2, cov_floor_yaw_cells=0.5, cov_scale=7.0),
+                               masking="raw").pose_from_volume(vol)
+    torch.testing.assert_close(cov1[0], torch.diag(torch.tensor([0.01 / 12, 0.01 / 12, 0.25e-4 / 12])))
+    vol2 = vol.clone()
+    vol2[0, 1, 3, 5] = 1e4  # two cells 0.5 m apart in y: moment 0.0625 m² on y
+    _, a = MaskedCorrelator(p.with_(cov_floor_cells=0.0, cov_floor_yaw_cells=0.0), masking="raw").pose_from_volume(vol2)
+    _, b = MaskedCorrelator(p.with_(cov_floor_cells=0.0, cov_floor_yaw_cells=0.0, cov_scale=7.0),
+                            masking="raw").pose_from_volume(vol2)
+    torch.testing.assert_close(a[0, 1, 1], torch.tensor(0.0625))
+    torch.testing.assert_close(b, 7.0 * a)

@@ -492,10 +492,71 @@ def test_calibrate_sets_the_pose_estimator_and_reports_each_scenario(tmp_path):
     res = cal.calibrate_checkpoint(path, drives, output=tmp_path / "cal.pt", pose_estimator="parabolic")
     assert 2.7 <= res.mean_d2 <= 3.3
     rows = {ln.split("|")[1].strip(): ln for ln in res.scenario_table.splitlines()[2:]}
-    assert set(rows) == {"urban", "open"} and all("| 29 |" in r for r in rows.values())
+    assert set(rows) == {"urban", "open", "all"} and all("| 29 |" in rows[k] for k in ("urban", "open"))
+    assert "| 58 |" in rows["all"]
     _, meta = load_checkpoint(tmp_path / "cal.pt")
     assert meta["profile"].pose_estimator == "parabolic"
     assert meta["calibration"]["per_scenario"] == res.scenario_table
+
+
+def test_fit_covariance_shape_recovers_a_known_scale_and_floors():
+    """Errors drawn from s·M + floors, with moments ranging from none (a sharp peak: the floor
+    alone) to large (a ridge along x): the fit finds s and both floors, mean d² ≈ 3."""
+    rng = np.random.default_rng(3)
+    prof = TINY
+    n = 4000
+    size = np.exp(rng.uniform(np.log(1e-4), np.log(4.0), n))  # m², from sharp to a long ridge
+    moments = np.zeros((n, 3, 3))
+    moments[:, 0, 0] = size
+    moments[:, 1, 1] = 0.05 * size
+    moments[:, 2, 2] = 1e-3 * size
+    truth = prof.with_(cov_scale=2.5, cov_floor_cells=0.2, cov_floor_yaw_cells=0.4)
+    cov = cal.shape_covariances(moments, truth)
+    errors = np.einsum("pij,pj->pi", np.linalg.cholesky(cov), rng.standard_normal((n, 3)))
+    shape = cal.fit_covariance_shape(moments, errors, prof)
+    assert shape.cov_scale == pytest.approx(2.5, rel=0.1)
+    assert shape.cov_floor_cells == pytest.approx(0.2, rel=0.1)
+    assert shape.cov_floor_yaw_cells == pytest.approx(0.4, rel=0.1)
+    assert shape.mean_d2 == pytest.approx(3.0, rel=0.02) and shape.pairs == n
+    # the paper's form (scale 1, a whole cell's floor) is far off on these errors: too wide for
+    # the sharp peaks, too narrow for the ridges; the fit is right for both
+    jit = cal.covariance_jitter(prof)
+    d2_paper = cal.mahalanobis_sq(errors, cal.shape_covariances(moments, prof), jit)
+    fitted = prof.with_(**shape.profile_fields())
+    d2_fit = cal.mahalanobis_sq(errors, cal.shape_covariances(moments, fitted), jit)
+    sharp, ridge = size < 1e-3, size > 1.0
+    assert d2_paper[sharp].mean() < 0.5 and d2_paper[ridge].mean() > 5.0
+    assert 2.5 < d2_fit[sharp].mean() < 3.5 and 2.5 < d2_fit[ridge].mean() < 3.5
+    with pytest.raises(ValueError, match="moments"):
+        cal.fit_covariance_shape(moments[:, :2, :2], errors, prof)
+
+
+def test_calibration_provenance_carries_no_build_machine_paths():
+    cmd = cal.provenance_command(["calibrate", "/home/me/runs/cart-0.4.pt", "--sim-seeds", "2500-2503",
+                                  "-o", "/tmp/x y/cal.pt", "rel/dir/model.pt"])
+    assert cmd == "radar-odom calibrate cart-0.4.pt --sim-seeds 2500-2503 -o cal.pt rel/dir/model.pt"
+
+
+def test_calibrate_checkpoint_fits_the_shape_and_the_model_reports_it(tmp_path):
+    drives = [D.toy_drive(TINY, 30, s, noise=0.3, name=f"urban-{s}") for s in (21, 22)]
+    path = save_checkpoint(tmp_path / "raw.pt", MaskedCorrelator(TINY, masking="raw"), "raw")
+    temp = cal.calibrate_checkpoint(path, drives, output=tmp_path / "t.pt", covariance="temperature")
+    res = cal.calibrate_checkpoint(path, drives, output=tmp_path / "f.pt")
+    assert temp.shape is None and res.shape is not None and res.beta_cov == pytest.approx(temp.beta_cov)
+    assert res.mean_d2 == pytest.approx(3.0, rel=0.05) and res.pairs == 58
+    model, meta = load_checkpoint(tmp_path / "f.pt")
+    prof = meta["profile"]
+    assert (prof.cov_scale, prof.cov_floor_cells, prof.cov_floor_yaw_cells) == pytest.approx(
+        (res.shape.cov_scale, res.shape.cov_floor_cells, res.shape.cov_floor_yaw_cells))
+    assert meta["calibration"]["shape"]["search"] == "exhaustive"
+    assert load_checkpoint(tmp_path / "t.pt")[1]["profile"].cov_scale == 1.0
+    # the calibrated model's own covariances give the fit's mean d²
+    from radar_odom_export.evaluate import estimate_drive
+
+    est = [estimate_drive(model.eval(), d.images) for d in drives]
+    err = np.concatenate([cal.pose_errors(d.poses_rel, p) for d, (p, _) in zip(drives, est)])
+    d2 = cal.mahalanobis_sq(err, np.concatenate([c for _, c in est]), cal.covariance_jitter(prof))
+    assert d2.mean() == pytest.approx(res.mean_d2, rel=1e-3)
 
 
 # ----------------------------------------------------------------------------- evaluation

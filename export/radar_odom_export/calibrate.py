@@ -14,6 +14,18 @@ spread the grid can express) yet it keeps d² finite — and huge, as it should 
 over-confident β.
 
 The correlation volumes are computed once per pair; every β then costs only a softmax.
+
+**Per-axis shape** (`fit_covariance_shape`, the default after the temperature): one temperature
+cannot be right for both a sharp peak and a corridor's ridge. With the parabolic read-out the
+pose is sub-cell precise wherever the peak is sharp, so the quantisation floor (a whole cell's
+variance) makes urban covariances ~10× too large in variance while a ridge's moment is too small.
+The model reports ``Σ = s·M + diag(c_t²·res², c_t²·res², c_ψ²·δψ²)/12`` (M: the beta_cov
+moment; ``cov_scale`` s, ``cov_floor_cells`` c_t, ``cov_floor_yaw_cells`` c_ψ), and the three
+are fitted by Gaussian maximum likelihood, ``min Σᵢ dᵢ² + log det Σᵢ``, on every consecutive
+pair of the calibration drives as the search the model will be exported with computes them
+(the fast search's moments differ from the exhaustive volume's). The family is closed under a
+common scale, so at the optimum mean d² = 3 on those pairs exactly; the per-scenario table shows
+the balance the floors and the scale buy.
 """
 from __future__ import annotations
 
@@ -28,6 +40,7 @@ from radar_odom import metrics
 from radar_odom.errors import RadarOdomError
 from radar_odom.profiles import GridProfile
 
+from .evaluate import covariance_jitter, estimate_drive, mahalanobis_sq, pose_errors  # noqa: F401 (re-exported)
 from .softargmax import candidate_weights, read_pose, weighted_covariance
 
 TARGET_D2 = 3.0
@@ -46,30 +59,32 @@ class CalibrationResult:
     table: list[tuple[float, float]]  # (beta, mean d²), sorted by beta
     pairs: int
     scenario_table: str = ""
+    shape: CovarianceShape | None = None  # the per-axis fit, when made (mean_d2 is then its own)
 
     def to_dict(self) -> dict:
         return {"beta_cov": self.beta_cov, "mean_d2": self.mean_d2, "pairs": self.pairs,
                 "target": TARGET_D2, "band": list(BAND), "jitter_cells": JITTER_CELLS,
-                "table": [[b, d] for b, d in self.table]}
+                "table": [[b, d] for b, d in self.table],
+                "shape": None if self.shape is None else self.shape.to_dict()}
 
 
-# ----------------------------------------------------------------------------- maths
-def covariance_jitter(profile: GridProfile) -> np.ndarray:
-    """float64[3]: the diagonal added to Σ̄ before inversion (module docstring)."""
-    return metrics.covariance_jitter(profile.resolution_m, profile.rotation_step_rad)
+@dataclass
+class CovarianceShape:
+    """`fit_covariance_shape`'s result: the profile fields and how they score on the fit's pairs."""
 
+    cov_scale: float
+    cov_floor_cells: float
+    cov_floor_yaw_cells: float
+    mean_d2: float  # on the pairs fitted (3 at the optimum)
+    pairs: int
+    search: str = "exhaustive"
 
-def pose_errors(gt_xyyaw: np.ndarray, mean_xyyaw: np.ndarray) -> np.ndarray:
-    """float64[P, 3]: ``gt − mean`` with the yaw difference wrapped to (−π, π]."""
-    e = np.asarray(gt_xyyaw, np.float64) - np.asarray(mean_xyyaw, np.float64)
-    e[:, 2] = -((-e[:, 2] + np.pi) % (2 * np.pi) - np.pi)
-    return e
+    def profile_fields(self) -> dict:
+        return {"cov_scale": self.cov_scale, "cov_floor_cells": self.cov_floor_cells,
+                "cov_floor_yaw_cells": self.cov_floor_yaw_cells}
 
-
-def mahalanobis_sq(err: np.ndarray, cov: np.ndarray, jitter_diag: np.ndarray | None = None) -> np.ndarray:
-    """float64[P]: ``eᵀ (Σ + diag(jitter))⁻¹ e`` for errors [P, 3] and covariances [P, 3, 3]
-    (`radar_odom.metrics.mahalanobis_sq`, the one the runtime reports)."""
-    return metrics.mahalanobis_sq(err, cov, jitter_diag)
+    def to_dict(self) -> dict:
+        return {**self.profile_fields(), "mean_d2": self.mean_d2, "pairs": self.pairs, "search": self.search}
 
 
 # ----------------------------------------------------------------------------- volumes
@@ -108,7 +123,8 @@ class D2Curve:
         self.flat = candidates.reshape(-1, 3).to(torch.float64)
         self.chunk = chunk
         self.jitter = covariance_jitter(profile)
-        self.floor = np.diag(profile.covariance_floor)  # as MaskedCorrelator.pose_from_volume adds
+        self.floor = np.diag(profile.covariance_floor)  # as MaskedCorrelator.covariance_from_moment
+        self.scale = profile.cov_scale
         # the pose the model reports (`softargmax.read_pose`)
         means = [read_pose(v.double(), candidates, profile) for v in volumes.split(chunk)]
         self.mean = torch.cat(means).numpy()
@@ -118,13 +134,112 @@ class D2Curve:
         covs = [
             weighted_covariance(candidate_weights(v.double(), beta), self.flat) for v in self.volumes.split(self.chunk)
         ]
-        return torch.cat(covs).numpy() + self.floor
+        return self.scale * torch.cat(covs).numpy() + self.floor
 
     def d2(self, beta: float) -> np.ndarray:
         return mahalanobis_sq(self.err, self.covariances(beta), self.jitter)
 
     def __call__(self, beta: float) -> float:
         return float(np.mean(self.d2(beta)))
+
+
+# ----------------------------------------------------------------------------- per-axis shape
+def shape_covariances(moments: np.ndarray, profile: GridProfile) -> np.ndarray:
+    """float64[P, 3, 3] ``cov_scale · M + covariance_floor`` for moments M [P, 3, 3] (as the model)."""
+    return profile.cov_scale * np.asarray(moments, np.float64) + np.diag(profile.covariance_floor)
+
+
+def fit_covariance_shape(moments: np.ndarray, errors: np.ndarray, profile: GridProfile,
+                         iterations: int = 4) -> CovarianceShape:
+    """Maximum-likelihood ``cov_scale``, ``cov_floor_cells`` and ``cov_floor_yaw_cells``.
+
+    Args:
+        moments: float[P, 3, 3] beta_cov second moments (m², m·rad, rad²), no scale or floor.
+        errors: float[P, 3] ``gt − pose`` (x m, y m, yaw rad; yaw wrapped).
+        profile: for the cell sizes (``resolution_m``, ``rotation_step_rad``).
+    Returns:
+        `CovarianceShape` minimising the Gaussian negative log-likelihood
+        ``Σᵢ dᵢ² + log det Σᵢ`` over the pairs (L-BFGS on the logs, so all three stay positive),
+        with the mean d² it gives there.
+    """
+    m = torch.as_tensor(np.asarray(moments, np.float64))
+    e = torch.as_tensor(np.asarray(errors, np.float64))
+    if m.ndim != 3 or m.shape[1:] != (3, 3) or e.shape != (m.shape[0], 3) or len(e) < 3:
+        raise ValueError(f"need moments [P, 3, 3] and errors [P, 3] with P >= 3, "
+                         f"got {tuple(m.shape)}, {tuple(e.shape)}")
+    cell2 = torch.tensor([profile.resolution_m, profile.resolution_m, profile.rotation_step_rad],
+                         dtype=torch.float64) ** 2 / 12.0
+    # start from the paper's form (scale 1, one cell's floor)
+    theta = torch.zeros(3, dtype=torch.float64, requires_grad=True)  # log s, log c_t², log c_ψ²
+    opt = torch.optim.LBFGS([theta], max_iter=200, line_search_fn="strong_wolfe")
+
+    def covs():
+        s, ft, fr = torch.exp(theta)
+        return s * m + torch.diag(torch.stack([ft, ft, fr]) * cell2)
+
+    def closure():
+        opt.zero_grad()
+        c = covs()
+        loss = (torch.einsum("pi,pij,pj->p", e, torch.linalg.inv(c), e) + torch.logdet(c)).mean()
+        loss.backward()
+        return loss
+
+    for _ in range(iterations):
+        opt.step(closure)
+    s, ft, fr = torch.exp(theta.detach()).tolist()
+    shape = CovarianceShape(cov_scale=s, cov_floor_cells=math.sqrt(ft), cov_floor_yaw_cells=math.sqrt(fr),
+                            mean_d2=math.nan, pairs=int(len(e)))
+    fitted = profile.with_(**shape.profile_fields())
+    shape.mean_d2 = float(mahalanobis_sq(e.numpy(), shape_covariances(m.numpy(), fitted),
+                                         covariance_jitter(fitted)).mean())
+    return shape
+
+
+@torch.no_grad()
+def search_estimates(model, drives: Sequence, search: str = "exhaustive", batch: int = 8,
+                     progress_desc: str | None = "search estimates"):
+    """(poses float64[P, 3], moments float64[P, 3, 3], gt float64[P, 3], names) over every
+    consecutive pair of ``drives``, as the ``search`` ("exhaustive" | "fast") computes them; the
+    moments are the model's covariances with its scale and floor taken back out."""
+    from radar_odom._progress import progress
+
+    if search not in ("exhaustive", "fast"):
+        raise ValueError(f"search must be 'exhaustive' or 'fast', got {search!r}")
+    seq = None
+    if search == "fast":
+        from .fast_search import FastSequenceStep, FastStreamStep
+
+        seq = FastSequenceStep(FastStreamStep(model)).eval()
+    poses, covs, gts, names = [], [], [], []
+    for d in progress(drives, desc=progress_desc, unit="drive", disable=progress_desc is None):
+        if seq is None:
+            p, c = estimate_drive(model, d.images, batch)
+        else:
+            out = [seq(torch.from_numpy(np.asarray(d.images[k : k + batch + 1], dtype=np.float32)))
+                   for k in range(0, len(d.images) - 1, batch)]
+            p = torch.cat([o[0] for o in out]).double().numpy()
+            c = torch.cat([o[1] for o in out]).double().numpy()
+        poses.append(p)
+        covs.append(c)
+        gts.append(np.asarray(d.poses_rel, np.float64))
+        names += [d.name] * len(p)
+    prof = model.profile
+    moments = (np.concatenate(covs) - np.diag(prof.covariance_floor)) / prof.cov_scale
+    return np.concatenate(poses), moments, np.concatenate(gts), names
+
+
+def shape_scenario_table(errors: np.ndarray, moments: np.ndarray, names: Sequence[str],
+                         before: GridProfile, after: GridProfile) -> str:
+    """Markdown: mean / median d² per scenario with the temperature alone and with the fitted shape."""
+    d2s = [mahalanobis_sq(errors, shape_covariances(moments, p), covariance_jitter(p)) for p in (before, after)]
+    scen = np.array([n.rsplit("-", 1)[0] for n in names])
+    lines = ["| scenario | pairs | mean d², temperature only | mean d², fitted | median d², fitted "
+             "| mean translation error m |", "|---|---:|---:|---:|---:|---:|"]
+    for sc in [*dict.fromkeys(scen), "all"]:
+        sel = np.ones(len(scen), bool) if sc == "all" else scen == sc
+        lines.append(f"| {sc} | {int(sel.sum())} | {d2s[0][sel].mean():.3g} | {d2s[1][sel].mean():.3g} "
+                     f"| {np.median(d2s[1][sel]):.3g} | {np.hypot(*errors[sel, :2].T).mean():.3f} |")
+    return "\n".join(lines)
 
 
 # ----------------------------------------------------------------------------- search
@@ -241,18 +356,27 @@ def calibrate_checkpoint(
     max_pairs: int | None = 2000,
     info: dict | None = None,
     pose_estimator: str | None = None,
+    covariance: str = "fitted",
+    search: str = "exhaustive",
 ) -> CalibrationResult:
-    """Calibrate a checkpoint's ``beta_cov`` on held-out ``drives``; write it in place or to ``output``.
+    """Calibrate a checkpoint's covariance on held-out ``drives``; write it in place or to ``output``.
 
     ``pose_estimator`` ("soft-argmax" | "parabolic"), if given, is set in the profile first (the
-    covariance is calibrated against the errors of the pose the model will report)."""
+    covariance is calibrated against the errors of the pose the model will report).
+    ``covariance``: "temperature" tunes ``beta_cov`` alone (paper Sec. 6.2, the quantisation floor
+    kept); "fitted" then fits the per-axis shape (`fit_covariance_shape`) on the estimates of
+    ``search`` ("exhaustive" | "fast": the search the model will be exported with)."""
     from dataclasses import asdict
 
     from .checkpoint import model_from_dict, read_checkpoint_dict, write_checkpoint_dict
 
+    if covariance not in ("fitted", "temperature"):
+        raise ValueError(f"covariance must be 'fitted' or 'temperature', got {covariance!r}")
     ckpt = read_checkpoint_dict(path)
     if pose_estimator:
         ckpt["profile"] = {**ckpt["profile"], "pose_estimator": pose_estimator}
+    if covariance == "fitted":  # the temperature is tuned in the paper's form, the shape after it
+        ckpt["profile"] = {**ckpt["profile"], "cov_scale": 1.0, "cov_floor_cells": 1.0, "cov_floor_yaw_cells": 1.0}
     model = model_from_dict(ckpt, source=str(path))
     volumes, gt, names = collect_volumes(model, drives, batch=batch, max_pairs=max_pairs, with_names=True)
     curve = D2Curve(volumes, gt, model.candidates, model.profile)
@@ -260,6 +384,17 @@ def calibrate_checkpoint(
     result.pairs = int(len(gt))
     result.scenario_table = scenario_d2_table(curve, names, result.beta_cov)
     profile = model.profile.with_(beta_cov=result.beta_cov)
+    del volumes, curve
+    if covariance == "fitted":
+        model = model_from_dict({**ckpt, "profile": asdict(profile)}, source=str(path)).eval()
+        poses, moments, gts, pair_names = search_estimates(model, drives, search, batch)
+        errors = pose_errors(gts, poses)
+        shape = fit_covariance_shape(moments, errors, profile)
+        shape.search = search
+        fitted = profile.with_(**shape.profile_fields())
+        result.shape, result.mean_d2, result.pairs = shape, shape.mean_d2, shape.pairs
+        result.scenario_table = shape_scenario_table(errors, moments, pair_names, profile, fitted)
+        profile = fitted
     ckpt["profile"] = asdict(profile)
     ckpt["calibration"] = {
         **result.to_dict(),
@@ -271,9 +406,17 @@ def calibrate_checkpoint(
     return result
 
 
+def provenance_command(argv: Sequence[str]) -> str:
+    """The command line as the checkpoint records it, absolute paths cut to their file names
+    (the checkpoint, and the model exported from it, must not carry build-machine paths)."""
+    import os
+    import shlex
+
+    return "radar-odom " + " ".join(shlex.quote(os.path.basename(a) if os.path.isabs(a) else a) for a in argv)
+
+
 def run_from_args(args) -> CalibrationResult:
     """`radar-odom calibrate`: held-out drives on the checkpoint's grid, then `calibrate_checkpoint`."""
-    import shlex
     import sys
 
     from radar_odom.profiles import GridProfile
@@ -284,7 +427,7 @@ def run_from_args(args) -> CalibrationResult:
     if args.threads:
         torch.set_num_threads(args.threads)
     profile = GridProfile.from_dict(read_checkpoint_dict(args.checkpoint)["profile"])
-    info = {"command": "radar-odom " + " ".join(shlex.quote(a) for a in sys.argv[1:])}
+    info = {"command": provenance_command(sys.argv[1:])}
     if args.data:
         drives = [d for p in args.data for d in sequence_drives(p, profile)]
         info["data"] = [str(p) for p in args.data]
@@ -308,11 +451,20 @@ def run_from_args(args) -> CalibrationResult:
         max_pairs=args.max_pairs,
         info=info,
         pose_estimator=getattr(args, "pose_estimator", None),
+        covariance=getattr(args, "covariance", "fitted"),
+        search=getattr(args, "search", "exhaustive"),
     )
     print(format_table(result.table, chosen=result.beta_cov))
-    print("\nper scenario at the chosen β:\n" + result.scenario_table)
-    print(
-        f"\nbeta_cov = {result.beta_cov:.4g} -> mean d² = {result.mean_d2:.3f} over {result.pairs} pairs "
-        f"(beta_pose = {profile.beta_pose:g}); written to {args.output or args.checkpoint}"
-    )
+    out = args.output or args.checkpoint
+    if result.shape is None:
+        print("\nper scenario at the chosen β:\n" + result.scenario_table)
+        print(f"\nbeta_cov = {result.beta_cov:.4g} -> mean d² = {result.mean_d2:.3f} over {result.pairs} pairs "
+              f"(beta_pose = {profile.beta_pose:g}); written to {out}")
+        return result
+    sh = result.shape
+    print(f"\nper scenario, {sh.search} search, every consecutive pair:\n" + result.scenario_table)
+    print(f"\nbeta_cov = {result.beta_cov:.4g} (beta_pose = {profile.beta_pose:g}), then by maximum likelihood "
+          f"cov_scale = {sh.cov_scale:.4g}, cov_floor_cells = {sh.cov_floor_cells:.4g}, "
+          f"cov_floor_yaw_cells = {sh.cov_floor_yaw_cells:.4g} -> mean d² = {sh.mean_d2:.3f} over {sh.pairs} pairs; "
+          f"written to {out}")
     return result

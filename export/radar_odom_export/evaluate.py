@@ -3,7 +3,7 @@
 For each drive the model estimates every consecutive pair (the pose at ``beta_pose``, the
 covariance at ``beta_cov``); estimates are chained into a trajectory (`se2.chain_relative`)
 and scored with `radar_odom.metrics.kitti_metrics` against the chained ground truth. Mean d²
-uses the same jittered inverse as calibration (`calibrate.mahalanobis_sq`).
+uses the jittered inverse calibration uses too (`mahalanobis_sq`).
 
 Single-mode Cartesian models are run the way a stream runs them: each sweep is masked, rotated
 and transformed once, and pair k correlates sweep k's unrotated spectrum with sweep k+1's
@@ -21,9 +21,26 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
+from radar_odom import metrics
 from radar_odom.se2 import chain_relative
 
-from .calibrate import covariance_jitter, mahalanobis_sq, pose_errors
+
+def covariance_jitter(profile) -> np.ndarray:
+    """float64[3]: the diagonal added to Σ̄ before inversion (`radar_odom.metrics.covariance_jitter`)."""
+    return metrics.covariance_jitter(profile.resolution_m, profile.rotation_step_rad)
+
+
+def pose_errors(gt_xyyaw: np.ndarray, mean_xyyaw: np.ndarray) -> np.ndarray:
+    """float64[P, 3]: ``gt − mean`` with the yaw difference wrapped to (−π, π]."""
+    e = np.asarray(gt_xyyaw, np.float64) - np.asarray(mean_xyyaw, np.float64)
+    e[:, 2] = -((-e[:, 2] + np.pi) % (2 * np.pi) - np.pi)
+    return e
+
+
+def mahalanobis_sq(err: np.ndarray, cov: np.ndarray, jitter_diag: np.ndarray | None = None) -> np.ndarray:
+    """float64[P]: ``eᵀ (Σ + diag(jitter))⁻¹ e`` (`radar_odom.metrics.mahalanobis_sq`, the one the
+    runtime reports)."""
+    return metrics.mahalanobis_sq(err, cov, jitter_diag)
 
 
 @torch.no_grad()

@@ -442,7 +442,7 @@ class FastStreamStep(nn.Module):
             mask = None if window is None else peak_window(volume, self.offsets_m, self.offsets_m, yaws, *window)
             pose, _ = band_moments(windowed_weights(volume, p.beta_pose, mask), self.offsets_m, yaws)
         _, cov = band_moments(candidate_weights(volume, p.beta_cov).reshape(volume.shape), self.offsets_m, yaws)
-        return pose, cov + self.model.cov_floor
+        return pose, self.model.covariance_from_moment(cov)
 
 
 class FastSequenceStep(nn.Module):

@@ -239,11 +239,17 @@ class MaskedCorrelator(nn.Module):
 
     def pose_from_volume(self, volume: torch.Tensor):
         """(pose [B, 3], covariance [B, 3, 3]) by soft-argmax with the profile's two βs; the
-        covariance includes the profile's quantisation floor (`GridProfile.covariance_floor`)."""
+        covariance is `covariance_from_moment` of the beta_cov moment."""
         p = self.profile
         pose = read_pose(volume, self.candidates, p)
         cov = weighted_covariance(candidate_weights(volume, p.beta_cov), self.candidates.reshape(-1, 3))
-        return pose, cov + self.cov_floor
+        return pose, self.covariance_from_moment(cov)
+
+    def covariance_from_moment(self, moment: torch.Tensor) -> torch.Tensor:
+        """float[B, 3, 3] ``cov_scale · moment + floor``: the covariance the model reports, from
+        the second moment of softmax(beta_cov · C) (`GridProfile.cov_scale`, `covariance_floor`)."""
+        scale = self.profile.cov_scale
+        return (moment if scale == 1.0 else scale * moment) + self.cov_floor
 
     def forward(self, prev, cur, prev_mask=None, cur_mask=None):
         """(pose float[B, 3], covariance float[B, 3, 3]) of ``cur``'s frame in ``prev``'s."""

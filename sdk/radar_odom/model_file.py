@@ -124,7 +124,8 @@ _PROFILE_RANGES = {
     "max_translation_m": (0.0, False), "rotation_range_rad": (0.0, False),
     "rotation_step_rad": (0.0, True), "beta_pose": (0.0, True), "beta_cov": (0.0, True),
     "near_range_m": (0.0, False), "unet_base_channels": (1, False), "unet_depth": (0, False),
-    "cov_floor_cells": (0.0, False), "pose_window_cells": (0, False),
+    "cov_floor_cells": (0.0, False), "cov_floor_yaw_cells": (0.0, False), "cov_scale": (0.0, True),
+    "pose_window_cells": (0, False),
 }
 
 

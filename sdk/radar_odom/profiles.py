@@ -53,8 +53,14 @@ class GridProfile:
     # The soft-argmax covariance is a moment of a distribution over grid cells: when β·C puts
     # its weight on one cell it tends to 0, although the true pose is anywhere within that cell.
     # This many cells' uniform quantisation variance, (c·cell)²/12 per axis, is added to it
-    # (`covariance_floor`); 0 gives the paper's eq. 3 alone.
+    # (`covariance_floor`); 0 gives the paper's eq. 3 alone. `radar-odom calibrate` fits it (and
+    # the yaw's, and cov_scale) to the errors of the pose read-out, which is sub-cell precise.
     cov_floor_cells: float = 1.0
+    cov_floor_yaw_cells: float = 1.0  # the same for yaw, in yaw steps
+    # The covariance is cov_scale × the beta_cov moment + the floor: one temperature shapes the
+    # moment, the scale and the two floors let the calibration (per-axis maximum likelihood) make
+    # a sharp peak's covariance small and a ridge's large at once.
+    cov_scale: float = 1.0
     # The pose is the soft-argmax over the candidates within this many cells (and yaw steps) of
     # the best one; the covariance still uses them all. 0: over every candidate (paper eq. 3),
     # which pulls the pose towards the window centre (zero motion) whenever the volume is not
@@ -128,10 +134,10 @@ class GridProfile:
     @property
     def covariance_floor(self) -> tuple[float, float, float]:
         """Variances (m², m², rad²) added to the covariance's diagonal: ``(c·cell)² / 12`` for
-        the x and y cell (``resolution_m``) and the yaw step, c = ``cov_floor_cells``."""
-        c = self.cov_floor_cells
-        r = (c * self.resolution_m) ** 2 / 12.0
-        return (r, r, (c * self.rotation_step_rad) ** 2 / 12.0)
+        the x and y cell (``resolution_m``, c = ``cov_floor_cells``) and the yaw step
+        (c = ``cov_floor_yaw_cells``)."""
+        r = (self.cov_floor_cells * self.resolution_m) ** 2 / 12.0
+        return (r, r, (self.cov_floor_yaw_cells * self.rotation_step_rad) ** 2 / 12.0)
 
     @property
     def extent_m(self) -> float:

@@ -3,14 +3,18 @@ from __future__ import annotations
 
 import argparse
 
-HELP = "tune a checkpoint's covariance temperature (beta_cov) on held-out drives until mean d² ≈ 3"
+HELP = "calibrate a checkpoint's covariance on held-out drives (mean d² ≈ 3, per axis)"
 
 DESCRIPTION = HELP + """.
 
-The pose keeps the trained beta_pose; only the covariance's softmax temperature changes
-(paper Sec. 6.2). beta_cov is swept log-spaced, then bisected until mean d² is in [2.7, 3.3];
-the beta -> mean d² table is printed and the chosen value written into the checkpoint's profile
-(in place, or to -o). DATA are recording folders with ground truth; without DATA, simulated
+The pose keeps the trained beta_pose; only the covariance changes. First its softmax
+temperature (paper Sec. 6.2): beta_cov is swept log-spaced, then bisected until mean d² is in
+[2.7, 3.3] (the beta -> mean d² table is printed). Then (--covariance fitted, the default) a
+scale of that moment and the quantisation floors of translation and yaw are fitted by maximum
+likelihood on every consecutive pair, as --search computes them, so that a sharp peak's
+covariance is small and a corridor ridge's large; the per-scenario d² table shows both. The
+values are written into the checkpoint's profile (in place, or to -o); `radar-odom export` then
+carries them into the graph. DATA are recording folders with ground truth; without DATA, simulated
 drives of --scenarios x --sim-seeds are used (policy: validation seeds 2000-2999, never the
 training or evaluation seeds). Needs the export extra (torch)."""
 
@@ -28,7 +32,14 @@ def register(subparsers) -> None:
     p.add_argument("--pose-estimator", choices=("soft-argmax", "parabolic"), default=None,
                    help="set how the model reads its pose off the volume before calibrating (default: keep the "
                         "checkpoint's): soft-argmax (paper eq. 3 at beta_pose) or parabolic (sub-cell peak fit)")
-    p.add_argument("--max-pairs", type=int, default=2000, help="use at most this many pairs, evenly spread")
+    p.add_argument("--covariance", choices=("fitted", "temperature"), default="fitted",
+                   help="fitted: the temperature, then per-axis scale and floors by maximum likelihood; "
+                        "temperature: beta_cov alone, the paper's (default: %(default)s)")
+    p.add_argument("--search", choices=("exhaustive", "fast"), default="exhaustive",
+                   help="the yaw search the model will be exported with (`radar-odom export --search`): the "
+                        "per-axis fit uses its estimates (default: %(default)s)")
+    p.add_argument("--max-pairs", type=int, default=2000,
+                   help="temperature stage: use at most this many pairs, evenly spread (their volumes are kept)")
     p.add_argument("--batch", type=int, default=8, help="pairs per forward pass (default: %(default)s)")
     p.add_argument("--workers", type=int, default=2, help="processes simulating drives (default: %(default)s)")
     p.add_argument("--threads", type=int, default=None, help="torch threads (default: all cores)")

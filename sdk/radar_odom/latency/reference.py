@@ -102,8 +102,8 @@ class FFTReference:
         pose = w @ cand
         wc = weights(self.profile.beta_cov)
         centred = cand - wc @ cand
-        # the same quantisation floor the graph adds (GridProfile.covariance_floor)
-        cov = (centred * wc[:, None]).T @ centred + np.diag(self.profile.covariance_floor)
+        # the same scale and floor the graph applies (GridProfile.cov_scale, covariance_floor)
+        cov = self.profile.cov_scale * ((centred * wc[:, None]).T @ centred) + np.diag(self.profile.covariance_floor)
         return pose, cov
 
 
