@@ -157,7 +157,13 @@ def test_unconstrained_direction_is_carried_by_the_prior_a_tight_one_is_not_pull
     cm = np.diag([30.0**2, 0.03**2, (0.2 * DEG) ** 2])
     res = prior.update(m, cm, DT)
     assert abs(res.pose[0] - pred[0]) < 0.01  # x from the prior
-    assert res.covariance[0, 0] == pytest.approx(pred_cov[0, 0], rel=1e-3)
+    assert res.filter_covariance[0, 0] == pytest.approx(pred_cov[0, 0], rel=1e-3)
+    # reported: the prior's information discounted k-fold where it carries the estimate...
+    k = MotionPriorConfig().report_prior_scale
+    assert res.covariance[0, 0] == pytest.approx(k * pred_cov[0, 0], rel=0.01)
+    # ...and hardly at all where the measurement does
+    assert res.covariance[1, 1] == pytest.approx(res.filter_covariance[1, 1], rel=0.01)
+    assert res.covariance[2, 2] == pytest.approx(res.filter_covariance[2, 2], rel=0.01)
     assert abs(res.pose[1] - m[1]) < 0.003 * abs(m[1] - pred[1])  # y: not pulled
     assert abs(res.pose[2] - m[2]) < 0.003 * abs(m[2] - pred[2])  # yaw: not pulled
     assert res.flags == {PRIOR_DOMINATED} and res.prior_share > 0.9
@@ -473,3 +479,35 @@ def test_evaluation_applies_the_runtime_prior_to_a_drive():
     assert fused.shape == poses.shape and fcov.shape == covs.shape
     assert abs(fused[8, 2]) < np.radians(1.0)  # gated: the prediction stands in for it
     np.testing.assert_allclose(fused[[1, 5, 11], 0], 2.0, atol=0.01)
+
+
+def test_reported_covariance_discounts_the_prior_but_the_filter_does_not():
+    """k = 1 reports the filter's own covariance; k > 1 widens only the report: the estimates,
+    flags and the velocity carried forward are the same for any k, and a gated step reports
+    k × the prediction's covariance."""
+    rng = np.random.default_rng(5)
+    steps = [(np.array([2.0 + 0.05 * rng.standard_normal(), 0.01 * rng.standard_normal(), 0.0]),
+              np.diag([rng.uniform(0.01, 4.0), 0.01, (0.3 * DEG) ** 2])) for _ in range(30)]
+    steps[20] = (np.array([2.0, 0.0, 20 * DEG]), np.diag([0.01, 0.01, (0.3 * DEG) ** 2]))  # gated
+    own, wide = MotionPrior(MotionPriorConfig(report_prior_scale=1.0)), MotionPrior(MotionPriorConfig())
+    k = wide.config.report_prior_scale
+    gated = []
+    for i, (m, c) in enumerate(steps):
+        a, b = own.update(m, c, DT), wide.update(m, c, DT)
+        gated += [i] if GATED in b.flags else []
+        np.testing.assert_array_equal(a.pose, b.pose)
+        assert a.flags == b.flags and a.filter_covariance is None
+        if i == 0:  # no prior yet: the measurement as it is
+            np.testing.assert_array_equal(b.covariance, c)
+            continue
+        np.testing.assert_allclose(b.filter_covariance, a.covariance, rtol=1e-12)
+        if GATED in b.flags:
+            np.testing.assert_allclose(b.covariance, k * b.prior[1], rtol=1e-12)
+            continue
+        # between the filter's own and the measurement's: Σf ≤ Σr ≤ Σm (Loewner order)
+        assert np.linalg.eigvalsh(b.covariance - a.covariance).min() > -1e-12
+        assert np.linalg.eigvalsh(c - b.covariance).min() > -1e-12
+    assert gated == [20]
+    np.testing.assert_array_equal(own.velocity, wide.velocity)
+    with pytest.raises(ValueError, match="report_prior_scale"):
+        MotionPriorConfig(report_prior_scale=0.5)

@@ -44,7 +44,8 @@ given the prediction (innovation d² above a χ² gate) is not averaged in: the 
 prediction, flagged ``"gated"``; after two gated steps in a row the next failing match is taken
 as it is (``"prior_reset"``), so a wrong prediction cannot lock the odometer. An estimate whose
 motion comes mostly from the prior is flagged ``"prior_dominated"``. ``Estimate.pose`` and
-``.covariance`` are the fused values; ``Estimate.measurement`` and ``.measurement_covariance``
+``.covariance`` are the fused values (the covariance as `radar_odom.motion_prior` reports it:
+with the prior's information discounted, step 8 there); ``Estimate.measurement`` and ``.measurement_covariance``
 the match as it came from the graph (re-expressed like the pose when bridged). Degenerate
 estimates use the same prediction and never update the velocity. A bridged match is fused over
 its whole interval (from the last good sweep), before it is re-expressed. With
