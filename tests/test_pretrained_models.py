@@ -39,6 +39,12 @@ def test_shipped_model_is_a_calibrated_learned_stream_model_of_its_profile(name)
     calibration = training["calibration"]
     assert info.profile.beta_cov == pytest.approx(calibration["beta_cov"])
     assert 2.7 <= calibration["mean_d2"] <= 3.3
+    # the per-axis shape fitted on the fast search's own estimates, and in the graph's profile
+    shape = calibration["shape"]
+    assert shape["search"] == "fast" and shape["pairs"] >= 1000
+    for field in ("cov_scale", "cov_floor_cells", "cov_floor_yaw_cells"):
+        assert getattr(info.profile, field) == pytest.approx(shape[field]), field
+    assert info.profile.cov_floor_cells < 1.0 < info.profile.cov_scale  # sub-cell peaks, wider ridges
     assert info.search is not None  # the shipped models use the fast yaw search
     # trained for real radars: gain/offset-free input, sub-cell peak read-out
     assert info.profile.input_norm == "floor-scale"
