@@ -95,12 +95,14 @@ def runtime_per_pair_ms(model, images: np.ndarray, repeats: int = 20, warmup: in
     return 1000.0 * float(np.median(times[warmup:] if len(times) > warmup else times))
 
 
-def with_motion_prior(poses: np.ndarray, covs: np.ndarray, dt_s: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
-    """The runtime's motion prior (`radar_odom.motion_prior.MotionPrior`, default settings) run
-    over a drive's measurements in order: fused poses float64[P, 3] and covariances [P, 3, 3]."""
+def with_motion_prior(poses: np.ndarray, covs: np.ndarray, dt_s: float = 0.25,
+                      config=None) -> tuple[np.ndarray, np.ndarray]:
+    """The runtime's motion prior (`radar_odom.motion_prior.MotionPrior`, default settings or
+    ``config``, a `MotionPriorConfig`) run over a drive's measurements in order: fused poses
+    float64[P, 3] and reported covariances [P, 3, 3]."""
     from radar_odom.motion_prior import MotionPrior
 
-    prior = MotionPrior()
+    prior = MotionPrior(config)
     out_p, out_c = [], []
     for m, c in zip(poses, covs):
         st = prior.update(m, c, dt_s)
@@ -111,14 +113,15 @@ def with_motion_prior(poses: np.ndarray, covs: np.ndarray, dt_s: float = 0.25) -
 
 def evaluate_model(model, drives: Sequence, step: int = 4, lengths=(100, 200), pooling: str = "segments",
                    batch: int = 8, timing_repeats: int = 20, progress_desc: str | None = None,
-                   motion_prior: bool = False, estimates: list | None = None) -> dict:
+                   motion_prior: bool = False, estimates: list | None = None, prior_config=None) -> dict:
     """KITTI metrics over all drives (and per scenario), mean d², runtime; a JSON-able dict.
 
     Drive names ``scenario-seed`` group drives by scenario for the per-scenario rows. With
     ``motion_prior`` the measurements are fused by the runtime's motion prior first (as
     `RadarOdometer` does by default; simulated drives are 4 Hz). ``estimates`` (a list of
     (poses, covs) per drive, as `estimate_drive` returns) skips the model; the result's
-    ``"estimates"`` holds the model's own, for a second call.
+    ``"estimates"`` holds the model's own, for a second call. ``prior_config``: a
+    `MotionPriorConfig` for the prior (default: the runtime's).
     """
     from radar_odom._progress import progress
     from radar_odom.metrics import kitti_metrics
@@ -129,7 +132,7 @@ def evaluate_model(model, drives: Sequence, step: int = 4, lengths=(100, 200), p
         poses, covs = estimates[i] if estimates is not None else estimate_drive(model, d.images, batch)
         raw_estimates.append((poses, covs))
         if motion_prior:
-            poses, covs = with_motion_prior(poses, covs)
+            poses, covs = with_motion_prior(poses, covs, config=prior_config)
         gt = d.poses_rel.astype(np.float64)
         d2 = mahalanobis_sq(pose_errors(gt, poses), covs, jitter)
         gt_abs.append(chain_relative(gt))

@@ -71,9 +71,11 @@ One step (`MotionPrior.update`), in order:
    ``report_prior_scale`` (``Σr⁻¹ = Σm⁻¹ + Ip'/k``, ``Ip'`` the tapered prior information; a gated
    step reports ``k·Σp``), while the filter itself (gate, fusion, velocity) keeps Σf. k = 8:
    on the calibration drives (seeds 2500–2503, all four scenarios) the shipped models' fused
-   mean d² is 4.22 / 3.97 at k = 1 (cart-0.4 / cart-0.8) and 3.00 / 2.90 at k = 8; it changes
-   slowly beyond (2.91 / 2.82 at k = 16), since a large k reports the measurement's own
-   covariance where the prior dominates. (k = 1 reports the filter's own covariance.)
+   mean d² is 4.22 / 3.97 at k = 1 (cart-0.4 / cart-0.8; highways 7.1 / 5.5) and 3.00 / 2.90
+   at k = 8 (highways 3.2 / 2.8): ``python benchmarks/eval_onnx.py --seeds 2500-2503
+   --motion-prior --report-prior-scale K …``. A larger k changes little more, since it then
+   reports the measurement's own covariance where the prior dominates. (k = 1 reports the
+   filter's own covariance.)
 
 Every covariance is symmetrized and inverted through its eigenvalues with a small floor, so a
 singular or near-singular covariance never gives a NaN.
