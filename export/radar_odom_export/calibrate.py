@@ -123,8 +123,7 @@ class D2Curve:
         self.flat = candidates.reshape(-1, 3).to(torch.float64)
         self.chunk = chunk
         self.jitter = covariance_jitter(profile)
-        self.floor = np.diag(profile.covariance_floor)  # as MaskedCorrelator.covariance_from_moment
-        self.scale = profile.cov_scale
+        self.profile = profile  # its scale and floor, as MaskedCorrelator.covariance_from_moment
         # the pose the model reports (`softargmax.read_pose`)
         means = [read_pose(v.double(), candidates, profile) for v in volumes.split(chunk)]
         self.mean = torch.cat(means).numpy()
@@ -134,7 +133,7 @@ class D2Curve:
         covs = [
             weighted_covariance(candidate_weights(v.double(), beta), self.flat) for v in self.volumes.split(self.chunk)
         ]
-        return self.scale * torch.cat(covs).numpy() + self.floor
+        return shape_covariances(torch.cat(covs).numpy(), self.profile)
 
     def d2(self, beta: float) -> np.ndarray:
         return mahalanobis_sq(self.err, self.covariances(beta), self.jitter)
