@@ -64,18 +64,17 @@ One step (`MotionPrior.update`), in order:
    velocity (a gated step leaves it as it was).
 8. **Reported covariance**: the filter's own Σf is right only if the measurements' errors were
    independent from step to step. They are not where the prior matters most: along a corridor
-   successive correlation volumes share the same ridge, and their peaks fall on the true shift or
-   near zero shift step after step, so the carried velocity is much less certain than Σf says
-   (on the calibration drives, estimates the prior dominates had mean d² 7–10 against Σf). The
-   covariance *reported* with the estimate therefore counts the prior's information divided by
-   ``report_prior_scale`` (``Σr⁻¹ = Σm⁻¹ + Ip'/k``, ``Ip'`` the tapered prior information; a gated
-   step reports ``k·Σp``), while the filter itself (gate, fusion, velocity) keeps Σf. k = 8:
-   on the calibration drives (seeds 2500–2503, all four scenarios) the shipped models' fused
-   mean d² is 4.22 / 3.97 at k = 1 (cart-0.4 / cart-0.8; highways 7.1 / 5.5) and 3.00 / 2.90
-   at k = 8 (highways 3.2 / 2.8): ``python benchmarks/eval_onnx.py --seeds 2500-2503
-   --motion-prior --report-prior-scale K …``. A larger k changes little more, since it then
-   reports the measurement's own covariance where the prior dominates. (k = 1 reports the
-   filter's own covariance.)
+   successive correlation volumes share the same ridge, and their peaks fall on the true shift
+   or near zero shift step after step, so the carried velocity is much less certain than Σf says
+   (highway figures below). The covariance *reported* with the estimate therefore counts the
+   prior's information divided by ``report_prior_scale`` (``Σr⁻¹ = Σm⁻¹ + Ip'/k``, ``Ip'`` the
+   tapered prior information; a gated step reports ``k·Σp``), while the filter itself (gate,
+   fusion, velocity) keeps Σf. k = 8: on the calibration drives (seeds 2500–2503, all four
+   scenarios) the shipped models' fused mean d² is 4.22 / 3.97 at k = 1 (cart-0.4 / cart-0.8;
+   highways 7.1 / 5.5) and 3.00 / 2.90 at k = 8 (highways 3.2 / 2.8): ``python
+   benchmarks/eval_onnx.py --seeds 2500-2503 --motion-prior --report-prior-scale K …``. A larger
+   k changes little more, since it then reports the measurement's own covariance where the prior
+   dominates. (k = 1 reports the filter's own covariance.)
 
 Every covariance is symmetrized and inverted through its eigenvalues with a small floor, so a
 singular or near-singular covariance never gives a NaN.
