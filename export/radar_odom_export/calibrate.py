@@ -144,8 +144,9 @@ class D2Curve:
 
 # ----------------------------------------------------------------------------- per-axis shape
 def shape_covariances(moments: np.ndarray, profile: GridProfile) -> np.ndarray:
-    """float64[P, 3, 3] ``cov_scale · M + covariance_floor`` for moments M [P, 3, 3] (as the model)."""
-    return profile.cov_scale * np.asarray(moments, np.float64) + np.diag(profile.covariance_floor)
+    """float64[P, 3, 3] ``cov_scale · M + covariance_floor`` for moments M [P, 3, 3] (as the model):
+    `GridProfile.covariance_from_moment`."""
+    return profile.covariance_from_moment(moments)
 
 
 def fit_covariance_shape(moments: np.ndarray, errors: np.ndarray, profile: GridProfile,

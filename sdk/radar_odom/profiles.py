@@ -139,6 +139,14 @@ class GridProfile:
         r = (self.cov_floor_cells * self.resolution_m) ** 2 / 12.0
         return (r, r, (self.cov_floor_yaw_cells * self.rotation_step_rad) ** 2 / 12.0)
 
+    def covariance_from_moment(self, moment):
+        """float64[..., 3, 3] the covariance the model reports from the beta_cov second moment(s)
+        ``moment`` [..., 3, 3] (m², m·rad, rad²): ``cov_scale · moment + diag(covariance_floor)``
+        (numpy; the graph's torch twin is ``MaskedCorrelator.covariance_from_moment``)."""
+        import numpy as np
+
+        return self.cov_scale * np.asarray(moment, np.float64) + np.diag(self.covariance_floor)
+
     @property
     def extent_m(self) -> float:
         """Half width of the image in metres (pixel-centre to image-edge)."""

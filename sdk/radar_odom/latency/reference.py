@@ -102,8 +102,7 @@ class FFTReference:
         pose = w @ cand
         wc = weights(self.profile.beta_cov)
         centred = cand - wc @ cand
-        # the same scale and floor the graph applies (GridProfile.cov_scale, covariance_floor)
-        cov = self.profile.cov_scale * ((centred * wc[:, None]).T @ centred) + np.diag(self.profile.covariance_floor)
+        cov = self.profile.covariance_from_moment((centred * wc[:, None]).T @ centred)  # as the graph
         return pose, cov
 
 
