@@ -54,6 +54,7 @@ def main(argv=None) -> int:
     from radar_odom._progress import progress
     from radar_odom.metrics import mahalanobis_sq
     from radar_odom.model_zoo import resolve_model
+    from radar_odom.se2 import wrap_angle
     from radar_odom.sim import simulate_drive
 
     odo = RadarOdometer(resolve_model(args.model), motion_prior=not args.no_prior)
@@ -70,12 +71,8 @@ def main(argv=None) -> int:
         gt.append(np.asarray(frame.pose_rel, dtype=np.float64).reshape(3))
     est, cov, meas, meas_cov, gt = map(np.asarray, (est, cov, meas, meas_cov, gt))
 
-    def errors(p):
-        e = gt - p
-        e[:, 2] = (e[:, 2] + np.pi) % (2 * np.pi) - np.pi
-        return e
-
-    err = errors(est)
+    err = gt - est  # truth − estimate, yaw wrapped to (−π, π]
+    err[:, 2] = wrap_angle(err[:, 2])
     d2 = mahalanobis_sq(err, cov)
     d2_xy = np.einsum("pi,pij,pj->p", err[:, :2], np.linalg.inv(cov[:, :2, :2]), err[:, :2])
     inside_xy = float(np.mean(d2_xy <= CHI2_2DOF_95))
