@@ -30,7 +30,17 @@ def test_metadata_round_trip():
     assert GridProfile.from_metadata(p.to_metadata()) == p
 
 
+def test_files_made_before_rotation_identity_read_as_exact():
+    """A profile dict without the key (every file made before it existed) keeps its meaning."""
+    d = {k: v for k, v in get_profile("cart-0.4").__dict__.items() if k != "rotation_identity"}
+    assert GridProfile.from_dict(d).rotation_identity == "exact"
+    p = get_profile("cart-0.4").with_(rotation_identity="resampled")
+    assert GridProfile.from_metadata(p.to_metadata()).rotation_identity == "resampled"
+
+
 def test_bad_profiles_are_rejected():
+    with pytest.raises(ValueError, match="rotation_identity"):
+        GridProfile("x", resolution_m=1.0, width_px=32, rotation_identity="nearest")
     with pytest.raises(ValueError, match="window"):
         GridProfile("x", resolution_m=1.0, width_px=32, max_translation_m=40)
     with pytest.raises(KeyError, match="unknown profile"):

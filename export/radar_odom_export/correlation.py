@@ -24,12 +24,16 @@ can suppress the border bands, and the raw-scan baseline accepts that small bias
 FFT implementation of the paper does; a linear correlation would need DFT length W + n.
 
 Streaming: a sweep's *spectrum* (half spectrum along columns, float[..., 2, W, W//2 + 1] with
-channel 0 = real, 1 = imaginary part) is the state kept between steps. Yaw 0 is always a
-candidate and its "rotation" is the image itself, so the rotated stack's yaw-0 slice spectrum is
-the next step's state for free. Both backends (`FFTCorrelation` here, `MatmulDFTCorrelation` in
+channel 0 = real, 1 = imaginary part) is the state kept between steps: the spectrum of the
+unrotated image. With ``profile.rotation_identity == "exact"`` yaw 0's "rotation" is the image
+itself, so the rotated stack's yaw-0 slice spectrum is the next step's state for free; with
+``"resampled"`` every yaw is resampled and the state is one more transform (`Rotator`).
+Both backends (`FFTCorrelation` here, `MatmulDFTCorrelation` in
 ``dft.py``) share this state format and the ``spectrum`` / ``correlate`` interface.
 """
 from __future__ import annotations
+
+import math
 
 import torch
 import torch.nn.functional as F
@@ -148,26 +152,197 @@ def gather_lerp(flat: torch.Tensor, index: torch.Tensor, fr: torch.Tensor, fc: t
     return top + fr * (bottom - top)
 
 
-class Rotator(nn.Module):
-    """Rotates feature images by every yaw candidate with precomputed sampling grids.
+class PolarRotator(nn.Module):
+    """Rotate images by whole yaw steps through one shared polar resampling.
 
-    Yaw 0 is not sampled: its slice is the input itself, exactly (so the stream state taken
-    from it equals the unrotated spectrum bit for bit) and one ``grid_sample`` cheaper.
+    Rotating about the image centre is a shift along azimuth in polar coordinates. The image
+    is resampled once onto a polar grid (``oversample`` rows per yaw step, a radius every
+    ``radial_step_px`` up to ``radius_px``; oversampling keeps the round trip's blur small and
+    alike for every rotation); rotation by s steps is a roll of that grid, and each rotated image
+    is resampled back to Cartesian with one table shared by all rotations. The tables depend
+    only on the geometry: they are computed in the graph from a few constants and folded by
+    onnxruntime at session start, so the file stays small. Both resamplings are bilinear with
+    zeros outside; the result differs from direct bilinear rotation (`correlation.rotate_images`) by the
+    second interpolation, a slight blur (the accuracy is measured in benchmarks/).
+
+    Layout (for speed in onnxruntime; the numbers are those of rolling and zero-padding the
+    polar grid): the first resampling writes the *wrapped, padded* grid ``[A + 2m + 1, R + 3]``
+    directly (row ``m + j`` is azimuth j, wrapped, for j = −m..A + m; column 0 and the last two
+    are the zero padding the second resampling's border needs, read from the source's zero
+    border), and the second one reads every rotation from that one grid: the roll is a row
+    offset folded into a constant table (`rotate_constant`), added to the index (`forward`,
+    any shifts) or, for consecutive shifts (`rotate_band`, the fast step's band), the start of
+    one block of whole rows, the tables staying constant. No rolled copies, no ``Pad``/``Concat``.
+    """
+
+    def __init__(self, width_px: int, step_rad: float, radius_px: float, max_shift: int,
+                 oversample: int = 2, radial_step_px: float = 0.5):
+        super().__init__()
+        steps = 2 * math.pi / step_rad
+        if abs(steps - round(steps)) > 1e-6:
+            raise ValueError(f"rotation step {step_rad} rad does not divide the full turn; "
+                             "use rotation='bilinear'")
+        self.width_px = int(width_px)
+        self.oversample = int(oversample)  # polar rows per yaw step
+        self.azimuths = int(round(steps)) * self.oversample
+        self.bin_rad = float(step_rad) / self.oversample
+        self.radial_step_px = float(radial_step_px)
+        self.radii = int(math.ceil(radius_px / self.radial_step_px)) + 2
+        self.max_shift = int(max_shift) * self.oversample  # in polar rows
+
+    def _tables(self, dtype):
+        """(the first resampling's table onto the wrapped padded grid, the second's (Cartesian
+        pixels' azimuth row, radius column) [W·W])."""
+        w, a, r, m = self.width_px, self.azimuths, self.radii, self.max_shift
+        c_w = (w - 1) / 2
+        # wrapped rows: azimuth bins A − m..A − 1, 0..A − 1, 0..m (torch.cat of the bins' angles)
+        bins = torch.arange(a, dtype=dtype)
+        phi = torch.cat([bins[a - m:], bins, bins[: m + 1]]) * self.bin_rad
+        rho = torch.arange(r, dtype=dtype) * self.radial_step_px
+        # polar sample (rho, phi) sits at x = rho·cos φ (up the rows), y = rho·sin φ (columns)
+        rows = c_w - rho[None, :] * torch.cos(phi)[:, None]
+        cols = c_w + rho[None, :] * torch.sin(phi)[:, None]
+        # padding columns: a position past the far corner clamps onto the source's zero border
+        # (fractions 0), so they sample exactly 0
+        far = torch.full((phi.shape[0], 1), 2.0 * w, dtype=dtype)
+        rows = torch.cat([far, rows, far, far], dim=1)
+        cols = torch.cat([far, cols, far, far], dim=1)
+        to_polar = bilinear_table(rows, cols, w, w)
+        idx = torch.arange(w, dtype=dtype)
+        x = (c_w - idx)[:, None].expand(w, w)
+        y = (idx - c_w)[None, :].expand(w, w)
+        az = torch.atan2(y, x)
+        az = torch.where(az < 0, az + 2 * math.pi, az) / self.bin_rad
+        return to_polar, (az.reshape(-1), torch.sqrt(x * x + y * y).reshape(-1) / self.radial_step_px)
+
+    def _wrapped_polar(self, images: torch.Tensor):
+        """images [B, W, W] → the wrapped padded polar grid flattened [B, (A + 2m + 1)·(R + 3)]
+        (class docstring), and the second resampling's table (`bilinear_table` on the padded
+        rolled grid [A + 1, R]: index int64[W·W], fractions float[W·W])."""
+        a = self.azimuths
+        to_polar, (az, rho) = self._tables(images.dtype)
+        b, w = images.shape[0], self.width_px
+        flat = F.pad(images, (1, 2, 1, 2)).reshape(b, -1)
+        index, fr, fc = to_polar
+        wrapped = gather_lerp(flat, index.reshape(1, -1).expand(b, -1), fr.reshape(1, -1),
+                               fc.reshape(1, -1), w + 3, source_differences=True)
+        return wrapped, bilinear_table(az, rho, a + 1, self.radii)
+
+    def _rotate(self, wrapped: torch.Tensor, index: torch.Tensor, fr: torch.Tensor, fc: torch.Tensor):
+        """Samples of the wrapped grid [B, L] at a table on it (index int64[B or 1, M] into the
+        grid *with* a zero row before it, as `bilinear_table` gives, fractions [1, M]) → [B, M]."""
+        stride = self.radii + 3
+        index = index - stride  # no zero row before the wrapped grid: it is never read
+        if index.shape[0] != wrapped.shape[0]:
+            index = index.expand(wrapped.shape[0], -1)
+        return gather_lerp(wrapped, index, fr, fc, stride)
+
+    def forward(self, images: torch.Tensor, shifts: torch.Tensor) -> torch.Tensor:
+        """images [B, W, W], shifts int64[B, K] (yaw = shift·step) → [B, K, W, W]."""
+        b, k = shifts.shape
+        w = self.width_px
+        wrapped, (index, fr, fc) = self._wrapped_polar(images)
+        # rotation by s reads the rolled grid whose row j is wrapped row m − oversample·s + j:
+        # the (data-dependent) roll is a row offset added to the shared table's index
+        rows = (self.max_shift - self.oversample * shifts) * (self.radii + 3)  # [B, K]
+        index = (index.reshape(1, 1, -1) + rows.unsqueeze(-1)).reshape(b, -1)
+        out = self._rotate(wrapped, index, fr.reshape(1, -1).repeat(1, k), fc.reshape(1, -1).repeat(1, k))
+        return out.reshape(b, k, w, w)
+
+    def rotate_band(self, images: torch.Tensor, last_shift: torch.Tensor, count: int,
+                    with_zero: bool = False) -> torch.Tensor:
+        """images [B, W, W] rotated by the ``count`` consecutive shifts ending at ``last_shift``
+        int64[B] (``last_shift − count + 1 .. last_shift``) → [B, count, W, W]; equal to
+        ``forward`` with those shifts. ``with_zero``: one more slice at the end, the round trip
+        at shift 0 (`rotate_constant` with ``[0]``), from the same polar grid.
+
+        The data-dependent roll is one row ``Gather`` (a contiguous block of the wrapped grid,
+        whole rows) and every bilinear table is constant (folded at session start), so no index
+        arithmetic runs per sweep.
+        """
+        b, w, r = images.shape[0], self.width_px, self.radii
+        stride, o = r + 3, self.oversample
+        rows = self.azimuths + o * (count - 1) + 1  # the block's rows that the band reads
+        wrapped, (index, fr, fc) = self._wrapped_polar(images)
+        total = wrapped.shape[1] // stride
+        # band item j (shift last − (count − 1 − j)) reads wrapped rows from
+        # m − o·last + o·(count − 1 − j) on: the block starts at first = m − o·last (0..2m, so
+        # the block's last row, first + o·(count − 1) + A, is at most A + 2m: inside)
+        first = self.max_shift - o * last_shift  # [B]
+        pick = first.reshape(b, 1) + torch.arange(rows, device=images.device)
+        pick = pick + torch.arange(b, device=images.device).reshape(b, 1) * total
+        block = wrapped.reshape(-1, stride).index_select(0, pick.reshape(-1)).reshape(b, -1)
+        offsets = o * (count - 1 - torch.arange(count, device=images.device)) * stride  # [count]
+        index = (index.reshape(1, -1) + offsets.reshape(-1, 1)).reshape(1, -1)
+        out = self._rotate(block, index, fr.reshape(1, -1).repeat(1, count), fc.reshape(1, -1).repeat(1, count))
+        out = out.reshape(b, count, w, w)
+        if with_zero:
+            zero = self._rotate(wrapped, *self._constant_table([0], images.dtype)).reshape(b, 1, w, w)
+            out = torch.cat([out, zero], dim=1)
+        return out
+
+    def rotate_constant(self, images: torch.Tensor, shifts) -> torch.Tensor:
+        """images [B, W, W] rotated by fixed shifts (a list of ints) → [B, K, W, W].
+
+        With fixed shifts the roll folds into the sampling table (constant, folded at session
+        start).
+        """
+        w = self.width_px
+        wrapped, _ = self._wrapped_polar(images)
+        out = self._rotate(wrapped, *self._constant_table(shifts, images.dtype))
+        return out.reshape(images.shape[0], len(shifts), w, w)
+
+    def _constant_table(self, shifts, dtype):
+        """The second resampling's table on the whole wrapped grid for fixed shifts (ints):
+        (index int64[1, K·W·W], row and column fractions [1, K·W·W]), as `_rotate` takes it."""
+        m, r = self.max_shift, self.radii
+        _, (az, rho) = self._tables(dtype)
+        offsets = torch.tensor([m - self.oversample * int(s) for s in shifts], dtype=dtype)
+        index, fr, fc = bilinear_table(az.reshape(1, -1) + offsets.reshape(-1, 1),
+                                        rho.reshape(1, -1).expand(len(shifts), -1),
+                                        self.azimuths + 2 * m + 1, r)
+        return index.reshape(1, -1), fr.reshape(1, -1), fc.reshape(1, -1)
+
+
+class Rotator(nn.Module):
+    """Rotates feature images by every yaw candidate.
+
+    ``profile.rotation_identity``:
+
+    * ``"exact"``: bilinear ``grid_sample`` with precomputed grids, and yaw 0 is not sampled: its
+      slice is the input itself (so the stream state taken from it equals the unrotated
+      spectrum bit for bit, one ``grid_sample`` cheaper). Every other yaw is an interpolated,
+      slightly blurred copy, so yaw 0 is favoured (`GridProfile.rotation_identity`).
+    * ``"resampled"``: every yaw, 0 included, through the polar round trip of `PolarRotator`
+      (the fast search's rotation), so that all candidates are blurred alike and training sees
+      the very volume the exported fast search computes.
+
+    ``exact_identity`` says whether the yaw-0 slice (index ``zero_index``) is the input itself.
     """
 
     def __init__(self, profile: GridProfile):
         super().__init__()
         yaws = list(profile.rotations_rad)
         self.zero_index = yaws.index(0.0)
+        self.exact_identity = profile.rotation_identity == "exact"
+        self.polar = None
+        if not self.exact_identity:
+            # features are zero beyond the support disc (model.support_disc): rotate only that
+            disc_px = (profile.width_px - 1) / 2 - profile.translation_cells
+            self.polar = PolarRotator(profile.width_px, profile.rotation_step_rad, disc_px, self.zero_index)
+            self.shifts = [k - self.zero_index for k in range(len(yaws))]
         others = torch.tensor([y for y in yaws if y != 0.0], dtype=torch.float64)
-        grids = rotation_grids(others, profile.width_px).to(torch.float32)
-        self.register_buffer("grids", grids, persistent=False)
+        if self.exact_identity:
+            grids = rotation_grids(others, profile.width_px).to(torch.float32)
+            self.register_buffer("grids", grids, persistent=False)
         self.rotates = len(others) > 0  # a plain bool: export tracing sees no shape test
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
         """float[B, W, W] → float[B, K, W, W] in the order of ``profile.rotations_rad``."""
         if not self.rotates:  # a rotation-free profile: yaw 0 is the only candidate
             return images.unsqueeze(1)
+        if self.polar is not None:
+            return self.polar.rotate_constant(images, self.shifts)
         rotated = rotate_images(images, self.grids)
         z = self.zero_index
         return torch.cat([rotated[:, :z], images.unsqueeze(1), rotated[:, z:]], dim=1)

@@ -55,8 +55,9 @@ def estimate_drive(model, images: np.ndarray, batch: int = 8) -> tuple[np.ndarra
         x = torch.from_numpy(np.asarray(images[s : s + batch], dtype=np.float32))
         if streamable:
             # features (mask, support disc) as stream_step makes them; [b, K, 2, W, G] once per sweep
-            spectra = corr.spectrum(rot(model.sweep_features(x)))
-            states = spectra[:, rot.zero_index]
+            features = model.sweep_features(x)
+            spectra = corr.spectrum(rot(features))
+            states = model.state_of(features, spectra)
             prevs = states[:-1] if prev_state is None else torch.cat([prev_state, states[:-1]])
             curs = spectra[1:] if prev_state is None else spectra
             if len(curs):

@@ -13,9 +13,10 @@ at every translation, which costs K rotations and K forward DFTs of W×W images 
    and without the normalisation the energy it removes biases the pick towards yaw 0.
 2. **Fine band** (`FastStreamStep`). The ``2b + 1`` consecutive candidates centred on that yaw
    (shifted, never truncated, to stay inside ±range) are evaluated at full resolution over the
-   whole translation window, and so is yaw 0, whose spectrum is the new state's (no extra
-   rotation or DFT): driving straight is the common case, and the rare coarse pick that strays
-   (1 of 956 held-out steps at 0.4 m/px) then still finds the straight-ahead match.
+   whole translation window, and so is yaw 0 (with the exact identity its spectrum is the new
+   state's: no extra rotation or DFT; with the resampled one, one more round trip and DFT):
+   driving straight is the common case, and the rare coarse pick that strays (1 of 956
+   held-out steps at 0.4 m/px) then still finds the straight-ahead match.
 3. **Soft-argmax over the evaluated yaws** (paper eq. 3): pose and covariance from the band's
    and yaw 0's candidates. Candidates outside get no weight, so **the covariance's yaw extent is
    limited to the band (and yaw 0)**, ``2b + 1`` steps wide. With a band covering every candidate
@@ -31,8 +32,9 @@ in the graph (folded by onnxruntime at session start). The first one writes the 
 already wrapped and zero-padded, and the band (consecutive yaws) reads one block of whole rows
 of it (a ``Gather`` whose start is the only data-dependent index), so the second resampling's
 tables are constant too, and no rolled copies are made (3.5× less gather time than K rolled
-copies, whose random reads missed the cache). Yaw 0 uses the image itself, exactly as the
-exhaustive step's `Rotator` does. ``rotation="bilinear"`` keeps ``grid_sample``.
+copies, whose random reads missed the cache). Yaw 0 follows ``profile.rotation_identity``, as
+the exhaustive step's `Rotator` does: the image itself ("exact") or the same round trip as every
+other yaw ("resampled"). ``rotation="bilinear"`` keeps ``grid_sample`` (exact identity only).
 
 **Factored DFT** (`FactoredSpectrum`). A matmul DFT of W points costs W² per transform (the
 export cannot use ``DFT`` nodes). With ``W = P·Q`` the four-step (Cooley–Tukey) factorisation
@@ -60,12 +62,11 @@ import math
 from dataclasses import dataclass
 
 import torch
-import torch.nn.functional as F
 from torch import nn
 
 from radar_odom.profiles import GridProfile
 
-from .correlation import bilinear_table, gather_lerp, rotate_images, rotation_grids
+from .correlation import PolarRotator, rotate_images, rotation_grids
 from .dft import FactoredSpectrum, LowResImage, WindowedInverse
 from .softargmax import candidate_weights, parabolic_peak, peak_window, pose_window, windowed_weights
 
@@ -196,146 +197,6 @@ class CoarseYawSelector(nn.Module):
         return self.indices[best]
 
 
-class PolarRotator(nn.Module):
-    """Rotate images by whole yaw steps through one shared polar resampling.
-
-    Rotating about the image centre is a shift along azimuth in polar coordinates. The image
-    is resampled once onto a polar grid (``oversample`` rows per yaw step, a radius every
-    ``radial_step_px`` up to ``radius_px``; oversampling keeps the round trip's blur small and
-    alike for every rotation); rotation by s steps is a roll of that grid, and each rotated image
-    is resampled back to Cartesian with one table shared by all rotations. The tables depend
-    only on the geometry: they are computed in the graph from a few constants and folded by
-    onnxruntime at session start, so the file stays small. Both resamplings are bilinear with
-    zeros outside; the result differs from direct bilinear rotation (`correlation.rotate_images`) by the
-    second interpolation, a slight blur (the accuracy is measured in benchmarks/).
-
-    Layout (for speed in onnxruntime; the numbers are those of rolling and zero-padding the
-    polar grid): the first resampling writes the *wrapped, padded* grid ``[A + 2m + 1, R + 3]``
-    directly (row ``m + j`` is azimuth j, wrapped, for j = −m..A + m; column 0 and the last two
-    are the zero padding the second resampling's border needs, read from the source's zero
-    border), and the second one reads every rotation from that one grid: the roll is a row
-    offset folded into a constant table (`rotate_constant`), added to the index (`forward`,
-    any shifts) or, for consecutive shifts (`rotate_band`, the fast step's band), the start of
-    one block of whole rows, the tables staying constant. No rolled copies, no ``Pad``/``Concat``.
-    """
-
-    def __init__(self, width_px: int, step_rad: float, radius_px: float, max_shift: int,
-                 oversample: int = 2, radial_step_px: float = 0.5):
-        super().__init__()
-        steps = 2 * math.pi / step_rad
-        if abs(steps - round(steps)) > 1e-6:
-            raise ValueError(f"rotation step {step_rad} rad does not divide the full turn; "
-                             "use rotation='bilinear'")
-        self.width_px = int(width_px)
-        self.oversample = int(oversample)  # polar rows per yaw step
-        self.azimuths = int(round(steps)) * self.oversample
-        self.bin_rad = float(step_rad) / self.oversample
-        self.radial_step_px = float(radial_step_px)
-        self.radii = int(math.ceil(radius_px / self.radial_step_px)) + 2
-        self.max_shift = int(max_shift) * self.oversample  # in polar rows
-
-    def _tables(self, dtype):
-        """(the first resampling's table onto the wrapped padded grid, the second's (Cartesian
-        pixels' azimuth row, radius column) [W·W])."""
-        w, a, r, m = self.width_px, self.azimuths, self.radii, self.max_shift
-        c_w = (w - 1) / 2
-        # wrapped rows: azimuth bins A − m..A − 1, 0..A − 1, 0..m (torch.cat of the bins' angles)
-        bins = torch.arange(a, dtype=dtype)
-        phi = torch.cat([bins[a - m:], bins, bins[: m + 1]]) * self.bin_rad
-        rho = torch.arange(r, dtype=dtype) * self.radial_step_px
-        # polar sample (rho, phi) sits at x = rho·cos φ (up the rows), y = rho·sin φ (columns)
-        rows = c_w - rho[None, :] * torch.cos(phi)[:, None]
-        cols = c_w + rho[None, :] * torch.sin(phi)[:, None]
-        # padding columns: a position past the far corner clamps onto the source's zero border
-        # (fractions 0), so they sample exactly 0
-        far = torch.full((phi.shape[0], 1), 2.0 * w, dtype=dtype)
-        rows = torch.cat([far, rows, far, far], dim=1)
-        cols = torch.cat([far, cols, far, far], dim=1)
-        to_polar = bilinear_table(rows, cols, w, w)
-        idx = torch.arange(w, dtype=dtype)
-        x = (c_w - idx)[:, None].expand(w, w)
-        y = (idx - c_w)[None, :].expand(w, w)
-        az = torch.atan2(y, x)
-        az = torch.where(az < 0, az + 2 * math.pi, az) / self.bin_rad
-        return to_polar, (az.reshape(-1), torch.sqrt(x * x + y * y).reshape(-1) / self.radial_step_px)
-
-    def _wrapped_polar(self, images: torch.Tensor):
-        """images [B, W, W] → the wrapped padded polar grid flattened [B, (A + 2m + 1)·(R + 3)]
-        (class docstring), and the second resampling's table (`bilinear_table` on the padded
-        rolled grid [A + 1, R]: index int64[W·W], fractions float[W·W])."""
-        a = self.azimuths
-        to_polar, (az, rho) = self._tables(images.dtype)
-        b, w = images.shape[0], self.width_px
-        flat = F.pad(images, (1, 2, 1, 2)).reshape(b, -1)
-        index, fr, fc = to_polar
-        wrapped = gather_lerp(flat, index.reshape(1, -1).expand(b, -1), fr.reshape(1, -1),
-                               fc.reshape(1, -1), w + 3, source_differences=True)
-        return wrapped, bilinear_table(az, rho, a + 1, self.radii)
-
-    def _rotate(self, wrapped: torch.Tensor, index: torch.Tensor, fr: torch.Tensor, fc: torch.Tensor):
-        """Samples of the wrapped grid [B, L] at a table on it (index int64[B or 1, M] into the
-        grid *with* a zero row before it, as `bilinear_table` gives, fractions [1, M]) → [B, M]."""
-        stride = self.radii + 3
-        index = index - stride  # no zero row before the wrapped grid: it is never read
-        if index.shape[0] != wrapped.shape[0]:
-            index = index.expand(wrapped.shape[0], -1)
-        return gather_lerp(wrapped, index, fr, fc, stride)
-
-    def forward(self, images: torch.Tensor, shifts: torch.Tensor) -> torch.Tensor:
-        """images [B, W, W], shifts int64[B, K] (yaw = shift·step) → [B, K, W, W]."""
-        b, k = shifts.shape
-        w = self.width_px
-        wrapped, (index, fr, fc) = self._wrapped_polar(images)
-        # rotation by s reads the rolled grid whose row j is wrapped row m − oversample·s + j:
-        # the (data-dependent) roll is a row offset added to the shared table's index
-        rows = (self.max_shift - self.oversample * shifts) * (self.radii + 3)  # [B, K]
-        index = (index.reshape(1, 1, -1) + rows.unsqueeze(-1)).reshape(b, -1)
-        out = self._rotate(wrapped, index, fr.reshape(1, -1).repeat(1, k), fc.reshape(1, -1).repeat(1, k))
-        return out.reshape(b, k, w, w)
-
-    def rotate_band(self, images: torch.Tensor, last_shift: torch.Tensor, count: int) -> torch.Tensor:
-        """images [B, W, W] rotated by the ``count`` consecutive shifts ending at ``last_shift``
-        int64[B] (``last_shift − count + 1 .. last_shift``) → [B, count, W, W]; equal to
-        ``forward`` with those shifts.
-
-        The data-dependent roll is one row ``Gather`` (a contiguous block of the wrapped grid,
-        whole rows) and every bilinear table is constant (folded at session start), so no index
-        arithmetic runs per sweep.
-        """
-        b, w, r = images.shape[0], self.width_px, self.radii
-        stride, o = r + 3, self.oversample
-        rows = self.azimuths + o * (count - 1) + 1  # the block's rows that the band reads
-        wrapped, (index, fr, fc) = self._wrapped_polar(images)
-        total = wrapped.shape[1] // stride
-        # band item j (shift last − (count − 1 − j)) reads wrapped rows from
-        # m − o·last + o·(count − 1 − j) on: the block starts at first = m − o·last (0..2m, so
-        # the block's last row, first + o·(count − 1) + A, is at most A + 2m: inside)
-        first = self.max_shift - o * last_shift  # [B]
-        pick = first.reshape(b, 1) + torch.arange(rows, device=images.device)
-        pick = pick + torch.arange(b, device=images.device).reshape(b, 1) * total
-        block = wrapped.reshape(-1, stride).index_select(0, pick.reshape(-1)).reshape(b, -1)
-        offsets = o * (count - 1 - torch.arange(count, device=images.device)) * stride  # [count]
-        index = (index.reshape(1, -1) + offsets.reshape(-1, 1)).reshape(1, -1)
-        out = self._rotate(block, index, fr.reshape(1, -1).repeat(1, count), fc.reshape(1, -1).repeat(1, count))
-        return out.reshape(b, count, w, w)
-
-    def rotate_constant(self, images: torch.Tensor, shifts) -> torch.Tensor:
-        """images [B, W, W] rotated by fixed shifts (a list of ints) → [B, K, W, W].
-
-        With fixed shifts the roll folds into the sampling table (constant, folded at session
-        start).
-        """
-        w, m, r = self.width_px, self.max_shift, self.radii
-        wrapped, _ = self._wrapped_polar(images)
-        _, (az, rho) = self._tables(images.dtype)
-        offsets = torch.tensor([m - self.oversample * int(s) for s in shifts], dtype=images.dtype)
-        index, fr, fc = bilinear_table(az.reshape(1, -1) + offsets.reshape(-1, 1),
-                                        rho.reshape(1, -1).expand(len(shifts), -1),
-                                        self.azimuths + 2 * m + 1, r)
-        out = self._rotate(wrapped, index.reshape(1, -1), fr.reshape(1, -1), fc.reshape(1, -1))
-        return out.reshape(images.shape[0], len(shifts), w, w)
-
-
 # ============================================================================ the step
 class FastStreamStep(nn.Module):
     """``(cur, prev_state) → (pose, covariance, new_state)`` like `MaskedCorrelator.stream_step`.
@@ -369,6 +230,10 @@ class FastStreamStep(nn.Module):
         disc_px = (p.width_px - 1) / 2 - p.translation_cells
         self.rotator = (None if self.settings.rotation == "bilinear" else
                         PolarRotator(p.width_px, p.rotation_step_rad, disc_px, p.num_rotations // 2))
+        self.exact_identity = p.rotation_identity == "exact"
+        if self.rotator is None and not self.exact_identity:
+            raise ValueError(f"profile {p.name!r} scores yaw 0 resampled (rotation_identity="
+                             "'resampled'), which only the polar rotation does; use rotation='polar'")
         self.register_buffer("yaw_table", torch.tensor(p.rotations_rad, dtype=torch.float64)
                              .to(torch.float32), persistent=False)
         offsets = torch.arange(-p.translation_cells, p.translation_cells + 1, dtype=torch.float64)
@@ -404,20 +269,26 @@ class FastStreamStep(nn.Module):
         pairs (`forward`: one stream step; `FastSequenceStep`: consecutive sweeps of a batch).
         """
         indices = self.band_indices(prev_state, new_state)  # [B, Kb]
-        # Yaw 0 is scored as well, from the spectrum already computed for the new state (no extra
-        # rotation or DFT): driving straight is the common case, and a coarse pick that strays
-        # (rare, at ~0.1 % of held-out steps) then still finds the straight-ahead match. When the
-        # band holds yaw 0 already, the extra slice gets no weight (it would count twice).
+        # Yaw 0 is scored as well: driving straight is the common case, and a coarse pick that
+        # strays (rare, at ~0.1 % of held-out steps) then still finds the straight-ahead match.
+        # With the exact identity its spectrum is the one already computed for the new state (no
+        # extra rotation or DFT); with the resampled one it is the polar round trip at shift 0,
+        # from the band's polar grid, and one more DFT. When the band holds yaw 0 already, the
+        # extra slice gets no weight (it would count twice).
         zero = torch.full_like(indices[:, :1], self.num_rotations // 2)
         has_zero = (indices == zero).any(dim=1, keepdim=True)  # [B, 1]
-        spectra = torch.cat([self.spectrum(self.rotate(features, indices)), spec.unsqueeze(1)], dim=1)
+        if self.exact_identity:
+            spectra = torch.cat([self.spectrum(self.rotate(features, indices)), spec.unsqueeze(1)], dim=1)
+        else:
+            spectra = self.spectrum(self.rotate(features, indices, with_zero=True))
         volume = self.inverse(prev_spec, spectra)  # [B, Kb + 1, N, N]
         drop = torch.cat([torch.zeros_like(indices, dtype=torch.bool), has_zero], dim=1)
         volume = volume.masked_fill(drop[:, :, None, None], NO_WEIGHT)
         return self.soft_argmax(volume, self.yaw_table[torch.cat([indices, zero], dim=1)])
 
-    def rotate(self, features: torch.Tensor, indices: torch.Tensor) -> torch.Tensor:
-        """features [B, W, W] rotated by the yaw candidates ``indices`` int64[B, Kb] → [B, Kb, W, W].
+    def rotate(self, features: torch.Tensor, indices: torch.Tensor, with_zero: bool = False) -> torch.Tensor:
+        """features [B, W, W] rotated by the yaw candidates ``indices`` int64[B, Kb] → [B, Kb, W, W]
+        (``with_zero``, resampled identity only: [B, Kb + 1, W, W], the last slice yaw 0).
 
         ``indices`` must be consecutive in each row (a band, as `band_indices` gives): the polar
         rotation reads them as one block (`PolarRotator.rotate_band`)."""
@@ -427,9 +298,10 @@ class FastStreamStep(nn.Module):
             return rotate_images(features, grids.reshape(b, k, *grids.shape[1:]))
         shifts = indices - self.num_rotations // 2
         # the band is consecutive (`band_indices`): one block of the polar grid, constant tables
-        rotated = self.rotator.rotate_band(features, shifts[:, -1], shifts.shape[1])
-        # yaw 0 is the image itself, exactly as in the exhaustive step (`Rotator`): the polar
-        # round trip would blur it like every other yaw and move weight off the peak
+        rotated = self.rotator.rotate_band(features, shifts[:, -1], shifts.shape[1], with_zero=with_zero)
+        if not self.exact_identity:
+            return rotated  # every yaw through the same round trip (GridProfile.rotation_identity)
+        # yaw 0 is the image itself, exactly as in the exhaustive step (`Rotator`)
         return torch.where((shifts == 0)[:, :, None, None], features.unsqueeze(1), rotated)
 
     def soft_argmax(self, volume: torch.Tensor, yaws: torch.Tensor):

@@ -266,7 +266,8 @@ class MaskedCorrelator(nn.Module):
         """(pose, covariance, new_state) for sweep ``cur`` against the previous step's state.
 
         Single mode masks and transforms each sweep once: the new state is the spectrum of the
-        yaw-0 slice of the rotated stack (the unrotated image), not a fresh transform.
+        yaw-0 slice of the rotated stack (the unrotated image), not a fresh transform; with a
+        resampled identity (`Rotator`) that slice is blurred and the state is transformed anew.
         """
         if self.dual:
             if cur_mask is not None:
@@ -274,6 +275,15 @@ class MaskedCorrelator(nn.Module):
             pose, cov = self(prev_state, cur)
             return pose, cov, cur
         corr = self.correlation
-        spectra = corr.spectrum(self.rotator(self.sweep_features(cur, cur_mask)))
+        features = self.sweep_features(cur, cur_mask)
+        spectra = corr.spectrum(self.rotator(features))
         pose, cov = self.pose_from_volume(corr.correlate(prev_state, spectra))
-        return pose, cov, spectra[:, self.rotator.zero_index]
+        return pose, cov, self.state_of(features, spectra)
+
+    def state_of(self, features: torch.Tensor, spectra: torch.Tensor) -> torch.Tensor:
+        """The stream state (the unrotated features' spectrum) of features [B, W, W] whose
+        rotated stack has the spectra [B, K, 2, W, G]: the yaw-0 slice where it is the image
+        itself, a fresh transform where the rotation resamples it (`Rotator`)."""
+        if self.rotator.exact_identity:
+            return spectra[:, self.rotator.zero_index]
+        return self.correlation.spectrum(features)

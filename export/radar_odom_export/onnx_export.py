@@ -95,6 +95,7 @@ class InGraphRotator(nn.Module):
     def __init__(self, rotator: Rotator, rotations_rad, width_px: int):
         super().__init__()
         self.zero_index = rotator.zero_index
+        self.exact_identity = True
         self.width_px = width_px
         others = [y for y in rotations_rad if y != 0.0]
         # float64 → float32 once, as the training grids are built (float64 grid, float32 stored)
@@ -134,7 +135,8 @@ def exportable(model) -> nn.Module:
     m = copy.deepcopy(model).cpu().eval()
     p = m.profile
     m.correlation = make_correlation("matmul", p.width_px, p.translation_cells)
-    m.rotator = InGraphRotator(m.rotator, p.rotations_rad, p.width_px)
+    if m.rotator.exact_identity:  # the resampled identity's polar tables are computed in the graph already
+        m.rotator = InGraphRotator(m.rotator, p.rotations_rad, p.width_px)
     m.dft = "matmul"
     return m
 

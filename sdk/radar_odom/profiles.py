@@ -29,6 +29,7 @@ from dataclasses import asdict, dataclass, fields, replace
 SWEEP_PERIOD_S = 0.25
 PAPER_TRANSLATION_M = 50.0
 INPUT_NORMS = ("none", "floor-scale")
+ROTATION_IDENTITIES = ("exact", "resampled")
 
 
 @dataclass(frozen=True)
@@ -72,6 +73,12 @@ class GridProfile:
     # is (a scene with much structure makes β·C so peaked that the soft-argmax snaps to a cell).
     # The covariance is the beta_cov soft-argmax moment either way.
     pose_estimator: str = "soft-argmax"
+    # How yaw 0 is scored: "exact" (the files made before this field: the image itself, while
+    # every other yaw is an interpolated, slightly blurred copy, so yaw 0 scores higher than it
+    # should and a gentle curve of up to ~1 yaw step per sweep reads as straight) or
+    # "resampled": yaw 0 goes through the same resampling as every other yaw (the polar round
+    # trip of `PolarRotator`, in training and in both exported searches), so no yaw is favoured.
+    rotation_identity: str = "exact"
     # Input normalisation (module docstring): "none" | "floor-scale". The floor is this quantile
     # over azimuth of each range ring, the scale this quantile of the floor-free image over the
     # support disc; the normalised image is clipped at norm_clip (0: no clip).
@@ -103,6 +110,8 @@ class GridProfile:
             )
         if self.pose_estimator not in ("soft-argmax", "parabolic"):
             raise ValueError(f"profile {self.name!r}: pose_estimator must be 'soft-argmax' or 'parabolic'")
+        if self.rotation_identity not in ROTATION_IDENTITIES:
+            raise ValueError(f"profile {self.name!r}: rotation_identity must be one of {ROTATION_IDENTITIES}")
         if self.input_norm not in INPUT_NORMS:
             raise ValueError(f"profile {self.name!r}: input_norm must be one of {INPUT_NORMS}")
         if not (0 < self.norm_floor_quantile <= 1 and 0 < self.norm_scale_quantile <= 1 and self.norm_clip >= 0):
