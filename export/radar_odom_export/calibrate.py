@@ -40,6 +40,7 @@ from radar_odom import metrics
 from radar_odom.errors import RadarOdomError
 from radar_odom.profiles import GridProfile
 
+from .checkpoint import provenance_command
 from .evaluate import covariance_jitter, estimate_drive, mahalanobis_sq, pose_errors  # noqa: F401 (re-exported)
 from .softargmax import candidate_weights, read_pose, weighted_covariance
 
@@ -404,15 +405,6 @@ def calibrate_checkpoint(
     }
     write_checkpoint_dict(output or path, ckpt)
     return result
-
-
-def provenance_command(argv: Sequence[str]) -> str:
-    """The command line as the checkpoint records it, absolute paths cut to their file names
-    (the checkpoint, and the model exported from it, must not carry build-machine paths)."""
-    import os
-    import shlex
-
-    return "radar-odom " + " ".join(shlex.quote(os.path.basename(a) if os.path.isabs(a) else a) for a in argv)
 
 
 def run_from_args(args) -> CalibrationResult:

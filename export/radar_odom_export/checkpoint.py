@@ -177,3 +177,12 @@ def resolve_checkpoint(name_or_path) -> Path:
         f"{name_or_path}: no such checkpoint file, and not a shipped checkpoint name "
         f"({', '.join(shipped_checkpoint_names()) or 'none shipped'})"
     )
+
+
+def provenance_command(argv) -> str:
+    """The command line as a checkpoint records it, absolute paths cut to their file names (the
+    checkpoint, and the model exported from it, must not carry build-machine paths)."""
+    import os
+    import shlex
+
+    return "radar-odom " + " ".join(shlex.quote(os.path.basename(a) if os.path.isabs(a) else a) for a in argv)

@@ -56,7 +56,7 @@ from torch import nn
 from radar_odom._progress import progress
 from radar_odom.profiles import GridProfile
 
-from .checkpoint import CheckpointError, save_checkpoint
+from .checkpoint import CheckpointError, provenance_command, save_checkpoint
 from .data import NO_AUGMENT, Augment, DataSpecError, Drive, PairDataset
 
 STATE_FORMAT = "radar-odom-train-state/1"
@@ -413,7 +413,7 @@ def train(
         raise ValueError(f"masking={cfg.masking!r} has no trainable weights; use masking='learned'")
     if cfg.init_from and not cfg.resume:
         _init_weights(model, cfg.init_from)
-        record["init_from"] = str(cfg.init_from)
+        record["init_from"] = Path(cfg.init_from).name  # no build-machine paths in a checkpoint
     optim = torch.optim.Adam(params, lr=cfg.lr)
     history: list[dict] = []
     steps_log: list[list[float]] = []  # [global step, loss]
@@ -691,8 +691,6 @@ def _sim_version() -> int:
 
 def run_from_args(args) -> dict:
     """`radar-odom train`: build the data (rank 0 first, it fills the cache), then `train`."""
-    import shlex
-
     from .data import (
         Augment,
         build_drives,
@@ -715,7 +713,7 @@ def run_from_args(args) -> dict:
                 f"are in normalised units); profile {profile.name!r} has 'none'"
             )
         labels = bool(args.supervised_masks)
-        info = {"command": "radar-odom " + " ".join(shlex.quote(a) for a in sys.argv[1:]), "profile_name": profile.name}
+        info = {"command": provenance_command(sys.argv[1:]), "profile_name": profile.name}
         with main_first(d):
             if args.data:
                 per_folder = folder_drives(args.data, profile)
