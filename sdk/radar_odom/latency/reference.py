@@ -85,7 +85,10 @@ class FFTReference:
         # the fast graph also scores yaw 0 (the unrotated image) whatever the band
         idx = np.union1d(idx, [len(self.yaws) // 2])
         rotated = self._rotated(cur_image, self.yaws[idx])
-        rotated[np.flatnonzero(idx == len(self.yaws) // 2)] = cur_image  # yaw 0: the image itself
+        if getattr(self.profile, "rotation_identity", "exact") == "exact":
+            rotated[np.flatnonzero(idx == len(self.yaws) // 2)] = cur_image  # yaw 0: the image itself
+        # else the graph resamples yaw 0 like every other yaw: warpAffine it too (the same work;
+        # OpenCV's bilinear at 0° is the image itself, so the poses stay the exact identity's)
         vol = self._volume(prev_spectrum, rotated, self.n)
         cand = np.concatenate([np.broadcast_to(self.trans, (len(idx), *self.trans.shape)),
                                np.broadcast_to(self.yaws[idx][:, None, None, None],
