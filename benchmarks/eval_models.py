@@ -29,6 +29,8 @@ def label_of(meta: dict) -> str:
     name = {"raw": "raw scan", "cfar": "CFAR masks (no training)", "masks": "supervised masks",
             "pose": "learned masks"}[objective]
     p = meta["profile"]
+    if objective == "raw" and p.input_norm == "none":
+        name += ", unnormalised power (the paper's baseline)"
     if (p.unet_base_channels, p.unet_depth) != (8, 5) and objective != "raw":
         name += f" (U-Net {p.unet_base_channels}ch×{p.unet_depth})"
     return name
