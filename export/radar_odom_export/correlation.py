@@ -217,8 +217,9 @@ class PolarRotator(nn.Module):
 
     def _wrapped_polar(self, images: torch.Tensor):
         """images [B, W, W] → the wrapped padded polar grid flattened [B, (A + 2m + 1)·(R + 3)]
-        (class docstring), and the second resampling's table (`bilinear_table` on the padded
-        rolled grid [A + 1, R]: index int64[W·W], fractions float[W·W])."""
+        (class docstring), the second resampling's table (`bilinear_table` on the padded
+        rolled grid [A + 1, R]: index int64[W·W], fractions float[W·W]) and the Cartesian
+        pixels' (azimuth row, radius column) it was made from (for `_constant_table`)."""
         a = self.azimuths
         to_polar, (az, rho) = self._tables(images.dtype)
         b, w = images.shape[0], self.width_px
@@ -226,7 +227,7 @@ class PolarRotator(nn.Module):
         index, fr, fc = to_polar
         wrapped = gather_lerp(flat, index.reshape(1, -1).expand(b, -1), fr.reshape(1, -1),
                                fc.reshape(1, -1), w + 3, source_differences=True)
-        return wrapped, bilinear_table(az, rho, a + 1, self.radii)
+        return wrapped, bilinear_table(az, rho, a + 1, self.radii), (az, rho)
 
     def _rotate(self, wrapped: torch.Tensor, index: torch.Tensor, fr: torch.Tensor, fc: torch.Tensor):
         """Samples of the wrapped grid [B, L] at a table on it (index int64[B or 1, M] into the
@@ -241,7 +242,7 @@ class PolarRotator(nn.Module):
         """images [B, W, W], shifts int64[B, K] (yaw = shift·step) → [B, K, W, W]."""
         b, k = shifts.shape
         w = self.width_px
-        wrapped, (index, fr, fc) = self._wrapped_polar(images)
+        wrapped, (index, fr, fc), _ = self._wrapped_polar(images)
         # rotation by s reads the rolled grid whose row j is wrapped row m − oversample·s + j:
         # the (data-dependent) roll is a row offset added to the shared table's index
         rows = (self.max_shift - self.oversample * shifts) * (self.radii + 3)  # [B, K]
@@ -263,7 +264,7 @@ class PolarRotator(nn.Module):
         b, w, r = images.shape[0], self.width_px, self.radii
         stride, o = r + 3, self.oversample
         rows = self.azimuths + o * (count - 1) + 1  # the block's rows that the band reads
-        wrapped, (index, fr, fc) = self._wrapped_polar(images)
+        wrapped, (index, fr, fc), (az, rho) = self._wrapped_polar(images)
         total = wrapped.shape[1] // stride
         # band item j (shift last − (count − 1 − j)) reads wrapped rows from
         # m − o·last + o·(count − 1 − j) on: the block starts at first = m − o·last (0..2m, so
@@ -277,7 +278,7 @@ class PolarRotator(nn.Module):
         out = self._rotate(block, index, fr.reshape(1, -1).repeat(1, count), fc.reshape(1, -1).repeat(1, count))
         out = out.reshape(b, count, w, w)
         if with_zero:
-            zero = self._rotate(wrapped, *self._constant_table([0], images.dtype)).reshape(b, 1, w, w)
+            zero = self._rotate(wrapped, *self._constant_table([0], az, rho)).reshape(b, 1, w, w)
             out = torch.cat([out, zero], dim=1)
         return out
 
@@ -288,16 +289,16 @@ class PolarRotator(nn.Module):
         start).
         """
         w = self.width_px
-        wrapped, _ = self._wrapped_polar(images)
-        out = self._rotate(wrapped, *self._constant_table(shifts, images.dtype))
+        wrapped, _, (az, rho) = self._wrapped_polar(images)
+        out = self._rotate(wrapped, *self._constant_table(shifts, az, rho))
         return out.reshape(images.shape[0], len(shifts), w, w)
 
-    def _constant_table(self, shifts, dtype):
-        """The second resampling's table on the whole wrapped grid for fixed shifts (ints):
+    def _constant_table(self, shifts, az, rho):
+        """The second resampling's table on the whole wrapped grid for fixed shifts (ints), from
+        the Cartesian pixels' (azimuth row, radius column) ``az``, ``rho`` (`_wrapped_polar`):
         (index int64[1, K·W·W], row and column fractions [1, K·W·W]), as `_rotate` takes it."""
         m, r = self.max_shift, self.radii
-        _, (az, rho) = self._tables(dtype)
-        offsets = torch.tensor([m - self.oversample * int(s) for s in shifts], dtype=dtype)
+        offsets = torch.tensor([m - self.oversample * int(s) for s in shifts], dtype=az.dtype)
         index, fr, fc = bilinear_table(az.reshape(1, -1) + offsets.reshape(-1, 1),
                                         rho.reshape(1, -1).expand(len(shifts), -1),
                                         self.azimuths + 2 * m + 1, r)
