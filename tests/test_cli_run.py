@@ -83,20 +83,40 @@ def test_run_without_ground_truth_says_so(model_path, drive, tmp_path, capsys):
 
 
 def test_evaluate_gives_kitti_metrics_on_a_long_enough_drive():
-    # 120 steps of 1.25 m (150 m), estimate 1 % longer. A 100 m segment ends at the first frame
-    # *beyond* 100 m: 81 steps = 101.25 m, so its error is 1.0125 m over the nominal 100 m.
+    # 120 steps of 1.25 m (150 m), estimate 1 % longer. A 150 m drive is scored on segments of
+    # 10, 20, …, 80 m (`kitti_lengths_for`). A segment of L m ends at the first frame *beyond* L:
+    # L/1.25 + 1 steps = L + 1.25 m, so its error is 0.01 (L + 1.25) m over the nominal L.
     rel = np.tile([1.25, 0.0, 0.0], (120, 1))
     gt = chain_relative(rel)
     est = chain_relative(rel * [1.01, 1.0, 1.0])
     metrics, steps = evaluate(gt, est)
     assert metrics is not None and metrics["step"] == 4 and metrics["pooling"] == "segments"
-    assert metrics["translation_percent"] == pytest.approx(1.0125, rel=1e-9)
+    assert metrics["lengths_m"] == [10, 20, 30, 40, 50, 60, 70, 80]
+    errs, counts = [], []
+    for length in metrics["lengths_m"]:
+        n = sum(1 for s in range(0, 121, 4) if s + length / 1.25 + 1 <= 120)  # segments that fit
+        errs.append(100 * 0.01 * (length + 1.25) / length)
+        counts.append(n)
+    want = float(np.average(errs, weights=counts))
+    assert metrics["translation_percent"] == pytest.approx(want, rel=1e-9)
+    assert metrics["num_segments"] == sum(counts)
     assert metrics["rotation_deg_per_m"] == pytest.approx(0.0, abs=1e-9)
     assert steps["mean_translation_m"] == pytest.approx(0.0125)
     text = format_metrics(metrics, steps)
-    assert "step 4" in text and "pooling segments" in text and "1.013 %" in text
-    short_metrics, _ = evaluate(gt[:20], est[:20])
+    assert "segments of 10–80 m" in text and "step 4" in text and "pooling segments" in text
+    assert f"{want:.3f} %" in text
+    short_metrics, _ = evaluate(gt[:20], est[:20])  # 24 m: not even an 80 m segment
     assert short_metrics is None
+
+
+def test_kitti_lengths_fit_the_drive():
+    from radar_odom.metrics import KITTI_LENGTHS_M, kitti_lengths_for
+
+    assert kitti_lengths_for(445.0) == (50, 100, 150, 200, 250, 300, 350, 400)
+    assert kitti_lengths_for(200.0) == (20, 40, 60, 80, 100, 120, 140, 160)
+    assert kitti_lengths_for(900.0) == KITTI_LENGTHS_M == kitti_lengths_for(5000.0)
+    assert kitti_lengths_for(88.0) is None and kitti_lengths_for(0.0) is None
+    assert kitti_lengths_for(89.0) == (10, 20, 30, 40, 50, 60, 70, 80)
 
 
 def test_demo_runs_end_to_end_with_a_given_model(model_path, tmp_path, capsys):

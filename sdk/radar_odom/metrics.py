@@ -18,6 +18,20 @@ POOLINGS = ("segments", "sequences")
 
 
 # --------------------------------------------------------------------------- KITTI metric
+def kitti_lengths_for(path_length_m: float) -> tuple[int, ...] | None:
+    """Segment lengths (m) for a drive of ``path_length_m``: KITTI's 100–800 m where it is long
+    enough (≥ 900 m), else eight equal steps up to the largest multiple of 80 m within 90 % of
+    the drive (445 m → 50, 100, …, 400; 200 m → 20, …, 160), so a short drive is scored on
+    segments of its own scale rather than on the one or two 100 m segments that fit. None when
+    even 80 m does not fit (use `relative_pose_errors`)."""
+    top = min(KITTI_LENGTHS_M[-1], int(math.floor(0.9 * float(path_length_m) / 80.0)) * 80)
+    if top < 80:
+        return None
+    if top == KITTI_LENGTHS_M[-1]:
+        return KITTI_LENGTHS_M
+    return tuple(top // 8 * k for k in range(1, 9))
+
+
 def path_lengths_m(poses: np.ndarray) -> np.ndarray:
     """float64[N]: distance travelled (m) along the positions of poses [N, 3, 3], from 0."""
     steps = np.linalg.norm(np.diff(poses[:, :2, 2], axis=0), axis=1)

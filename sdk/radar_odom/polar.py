@@ -14,6 +14,15 @@ bilinear with ``cv2.remap`` (zero outside the image, so pixels beyond the last b
 
 The sampling maps depend only on the sweep geometry and the grid, so they are built once and
 kept in a small LRU cache keyed by that geometry (`map_cache_info`, `clear_map_cache`).
+
+Motion compensation (de-skew) and a moved image frame: a spinning radar takes a whole period to
+sweep, so with the vehicle moving each azimuth is seen from another place. Given the sensor's
+velocity (a body twist, constant over the sweep) and each azimuth's time relative to the instant
+the image is to show, `moving_sample_maps` finds for each Cartesian pixel the azimuth that saw
+that point and where, so the image is the scene as seen from the sensor at that one instant.
+The same maps can also place the image in a frame moved from the sensor's (``frame_pose``): the
+odometer uses it to centre a match on the motion predicted over a long gap. These maps depend on
+the motion, so they are built per sweep (`moving_sample_maps`, a few ms) and not cached.
 """
 from __future__ import annotations
 
@@ -89,6 +98,95 @@ def cartesian_sample_maps(
     return u.astype(np.float32), v.astype(np.float32)
 
 
+def _sensor_pose_at(tau_s: np.ndarray, twist) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(x m, y m, yaw rad) arrays: the sensor's pose after ``tau_s`` seconds of the constant body
+    twist ``(vx m/s, vy m/s, yaw rate rad/s)``, in its frame at τ = 0 (exact SE(2) exponential:
+    an arc, not a chord, so a turning car's azimuths are placed on its path)."""
+    vx, vy, w = (float(v) for v in twist)
+    theta = w * tau_s
+    small = np.abs(theta) < 1e-9
+    safe = np.where(small, 1.0, theta)
+    a = np.where(small, 1.0, np.sin(safe) / safe)  # sinθ/θ
+    b = np.where(small, 0.5 * theta, (1.0 - np.cos(safe)) / safe)  # (1 − cosθ)/θ
+    x = (a * vx - b * vy) * tau_s
+    y = (b * vx + a * vy) * tau_s
+    return x, y, theta
+
+
+def moving_sample_maps(
+    azimuths_rad: np.ndarray,
+    azimuth_times_s: np.ndarray,
+    twist,
+    frame_pose,
+    num_bins: int,
+    range_resolution_m: float,
+    range_offset_m: float,
+    resolution_m: float,
+    width_px: int,
+    iterations: int = 3,
+) -> tuple[np.ndarray, np.ndarray]:
+    """`cartesian_sample_maps` for a moving sensor and/or a moved image frame.
+
+    Args:
+        azimuths_rad: float[A] strictly increasing in [0, 2π): each polar row's angle.
+        azimuth_times_s: float[A]: each row's time (s) relative to the instant the image shows
+            (0 for the row seen at that instant; the sweep's first azimuth for the odometer).
+        twist: ``(vx m/s, vy m/s, yaw rate rad/s)``, the sensor's body twist, constant over the
+            sweep (x forward, y right, yaw from x towards y), or None for a still sensor.
+        frame_pose: ``(x m, y m, yaw rad)``: the image's frame in the sensor frame at that
+            instant (Oxford convention), or None for the sensor frame itself.
+        num_bins, range_resolution_m, range_offset_m, resolution_m, width_px: as in
+            `cartesian_sample_maps`.
+        iterations: fixed-point steps finding the azimuth that saw each pixel (the azimuth
+            decides the time, the time the sensor's pose, the pose the azimuth); the update
+            shrinks by the turn the sensor makes between neighbouring azimuths, so three steps
+            are exact to far below a bin at road speeds.
+
+    Returns:
+        ``(map_bin, map_row)`` float32 [W, W], as `cartesian_sample_maps`. With ``twist`` and
+        ``frame_pose`` both None they equal `cartesian_sample_maps`'s exactly.
+
+    A static point at position q of the image is seen by the row whose angle is the bearing of
+    q from where the sensor was at that row's time: ``p = S(τ)⁻¹ · F · q`` with F the frame
+    pose and S(τ) the sensor pose after τ. Rows next to the seam were seen one period apart,
+    so at the seam the row time is interpolated between the last and the first row's times.
+    """
+    h = half_extent_m(resolution_m, width_px)
+    coords = np.linspace(-h, h, width_px)
+    y_q, x_q = np.meshgrid(coords, -coords)  # row 0 = +x (ahead), column grows to +y
+    if frame_pose is not None:
+        fx, fy, fyaw = (float(v) for v in frame_pose)
+        c, s_ = math.cos(fyaw), math.sin(fyaw)
+        x_q, y_q = c * x_q - s_ * y_q + fx, s_ * x_q + c * y_q + fy
+    ext = seam_extended_azimuths(azimuths_rad)
+    if np.any(np.diff(ext) <= 0):
+        raise ScanFormatError(
+            f"azimuths must increase strictly and span less than a full turn "
+            f"(first {ext[1]:.6g} rad, last {ext[-2]:.6g} rad)"
+        )
+    x_m, y_m = x_q, y_q
+    if twist is not None and any(float(v) != 0.0 for v in twist):
+        tau = np.asarray(azimuth_times_s, dtype=np.float64)
+        if tau.shape != (ext.size - 2,):
+            raise ValueError(f"azimuth_times_s must hold one time per azimuth ({ext.size - 2}), got {tau.shape}")
+        tau_ext = np.concatenate(([tau[-1]], tau, [tau[0]]))
+        phi = np.mod(np.arctan2(y_q, x_q), TWO_PI)
+        for _ in range(max(int(iterations), 1)):
+            t = np.interp(phi.ravel(), ext, tau_ext).reshape(phi.shape)
+            sx, sy, syaw = _sensor_pose_at(t, twist)
+            c, s_ = np.cos(syaw), np.sin(syaw)
+            dx, dy = x_q - sx, y_q - sy
+            x_m, y_m = c * dx + s_ * dy, -s_ * dx + c * dy  # R(−yaw)·(q − t)
+            phi = np.mod(np.arctan2(y_m, x_m), TWO_PI)
+    rho_m = np.hypot(x_m, y_m)
+    phi_rad = np.mod(np.arctan2(y_m, x_m), TWO_PI)
+    phi_rad[phi_rad >= TWO_PI] = 0.0  # mod can round up to 2π for a tiny negative angle
+    u = (rho_m - range_offset_m - 0.5 * range_resolution_m) / range_resolution_m
+    np.clip(u, 0.0, float(num_bins), out=u)
+    v = np.interp(phi_rad.ravel(), ext, np.arange(ext.size, dtype=np.float64)).reshape(phi_rad.shape)
+    return u.astype(np.float32), v.astype(np.float32)
+
+
 def near_range_bins(near_range_m: float, range_resolution_m: float, range_offset_m: float, num_bins: int) -> int:
     """How many leading bins have their centre closer than ``near_range_m`` (these get blanked)."""
     if near_range_m <= 0:
@@ -160,7 +258,8 @@ def clear_map_cache() -> None:
 
 
 # --------------------------------------------------------------------------- conversion
-def polar_to_cartesian(scan, resolution_m: float, width_px: int, near_range_m: float = 0.0, out=None) -> np.ndarray:
+def polar_to_cartesian(scan, resolution_m: float, width_px: int, near_range_m: float = 0.0, out=None, *,
+                       twist=None, frame_pose=None) -> np.ndarray:
     """Cartesian image float32 [W, W] of a `RadarScan` (see the module docstring for the frames).
 
     Args:
@@ -169,12 +268,40 @@ def polar_to_cartesian(scan, resolution_m: float, width_px: int, near_range_m: f
         near_range_m: power at bins whose centre is closer than this is zeroed before sampling
             (the vehicle's own returns; Oxford practice ≈ 2.5 m). 0 keeps everything.
         out: optional float32 [W, W] C-contiguous array to write into (no allocation per sweep).
+        twist: optional ``(vx m/s, vy m/s, yaw rate rad/s)`` of the sensor over the sweep: the
+            sweep is de-skewed to the instant of its first azimuth (``scan.timestamp_us``), using
+            each row's timestamp (`moving_sample_maps`).
+        frame_pose: optional ``(x m, y m, yaw rad)``: draw the image in this frame, given in the
+            sensor's frame at that instant, instead of the sensor's own.
     """
     az = _sampling_azimuths(scan)
+    maps = None
+    if twist is not None or frame_pose is not None:
+        maps = moving_sample_maps(az, azimuth_times_s(scan), twist, frame_pose, scan.num_bins,
+                                  scan.range_resolution_m, scan.range_offset_m, resolution_m, width_px)
     return _remap(
         scan.power, az, scan.range_resolution_m, scan.range_offset_m, resolution_m, width_px, near_range_m, out,
-        source=scan.source,
+        source=scan.source, maps=maps,
     )
+
+
+def azimuth_times_s(scan) -> np.ndarray:
+    """float64[A]: each row's time in s after the sweep's first azimuth (``scan.timestamp_us``).
+
+    Invalid rows may carry junk times (a dropped azimuth): theirs are interpolated by row index
+    from the valid rows, so the times stay in row order.
+    """
+    t = (np.asarray(scan.timestamps_us, dtype=np.int64) - int(scan.timestamp_us)).astype(np.float64) * 1e-6
+    valid = np.asarray(scan.valid, dtype=bool)
+    if valid.all() or valid.sum() < 2:
+        return t
+    rows = np.arange(t.size, dtype=np.float64)
+    v_idx = np.flatnonzero(valid)
+    slope = float(np.polyfit(v_idx, t[v_idx], 1)[0])
+    out = np.interp(rows, v_idx, t[v_idx])
+    out[: v_idx[0]] = t[v_idx[0]] - slope * (v_idx[0] - rows[: v_idx[0]])
+    out[v_idx[-1] + 1:] = t[v_idx[-1]] + slope * (rows[v_idx[-1] + 1:] - v_idx[-1])
+    return out
 
 
 def polar_to_cartesian_array(
@@ -206,14 +333,19 @@ def polar_to_cartesian_array(
     return _remap(power, az, range_resolution_m, range_offset_m, resolution_m, width_px, near_range_m, out, "arrays")
 
 
-def _remap(power, az_rad, range_res, range_off, resolution_m, width_px, near_range_m, out, source) -> np.ndarray:
+def _remap(power, az_rad, range_res, range_off, resolution_m, width_px, near_range_m, out, source,
+           maps=None) -> np.ndarray:
     if not resolution_m > 0 or int(width_px) != width_px or width_px < 2:
         raise ValueError(f"resolution_m must be > 0 and width_px an integer >= 2 (got {resolution_m}, {width_px})")
     if not range_res > 0:
         raise ScanFormatError(f"{source}: range_resolution_m must be > 0 (got {range_res})")
     width_px = int(width_px)
     a, b = power.shape
-    map_bin, map_row, bins_used = _CACHE.get(az_rad, b, range_res, range_off, resolution_m, width_px)
+    if maps is None:
+        map_bin, map_row, bins_used = _CACHE.get(az_rad, b, range_res, range_off, resolution_m, width_px)
+    else:
+        map_bin, map_row = maps
+        bins_used = int(min(b, math.floor(float(map_bin.max())) + 2))
     padded = np.empty((a + 2, bins_used), dtype=np.float32)
     padded[1:-1] = power[:, :bins_used]
     padded[0] = power[-1, :bins_used]

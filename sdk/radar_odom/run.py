@@ -162,7 +162,7 @@ def evaluate(gt_poses: np.ndarray, est_poses: np.ndarray, estimates=None,
     relative ground truth) is used for the per-step errors when given, so one missing pair costs
     one step, not every step after it (chained absolute poses are unknown past a gap).
     """
-    from .metrics import kitti_metrics, mahalanobis_sq, relative_pose_errors
+    from .metrics import kitti_lengths_for, kitti_metrics, mahalanobis_sq, path_lengths_m, relative_pose_errors
     from .se2 import relative_from_absolute
 
     gt_rel = relative_from_absolute(gt_poses) if gt_relative is None else np.asarray(gt_relative, dtype=np.float64)
@@ -186,8 +186,11 @@ def evaluate(gt_poses: np.ndarray, est_poses: np.ndarray, estimates=None,
                 pass
     metrics = None
     if ok.all() and np.all(np.isfinite(gt_poses)):
+        lengths = kitti_lengths_for(path_lengths_m(gt_poses)[-1])
         try:
-            metrics = kitti_metrics(gt_poses, est_poses, step=KITTI_STEP, pooling=KITTI_POOLING)
+            if lengths is not None:
+                metrics = kitti_metrics(gt_poses, est_poses, step=KITTI_STEP, pooling=KITTI_POOLING, lengths=lengths)
+                metrics["lengths_m"] = list(lengths)
         except ValueError:  # too short for even the shortest segment
             metrics = None
     return metrics, step_errors
@@ -197,8 +200,10 @@ def format_metrics(metrics: dict | None, step_errors: dict | None) -> str:
     """Human-readable lines for the metrics (always naming step and pooling)."""
     lines = []
     if metrics is not None:
+        lengths = metrics.get("lengths_m")
+        seg = f"segments of {lengths[0]:g}–{lengths[-1]:g} m, " if lengths else ""
         lines.append(
-            f"KITTI odometry (step {metrics.get('step', KITTI_STEP)}, pooling "
+            f"KITTI odometry ({seg}step {metrics.get('step', KITTI_STEP)}, pooling "
             f"{metrics.get('pooling', KITTI_POOLING)}, {metrics.get('num_segments', '?')} segments): "
             f"translation {metrics['translation_percent']:.3f} %, rotation {metrics['rotation_deg_per_m']:.5f} deg/m"
         )
@@ -209,7 +214,7 @@ def format_metrics(metrics: dict | None, step_errors: dict | None) -> str:
             f"(see the warnings); per-step relative errors over the other {used} instead"
         )
     elif step_errors is not None:
-        lines.append("KITTI odometry: drive too short for a 100 m segment; per-step relative errors instead")
+        lines.append("KITTI odometry: drive too short for an 80 m segment; per-step relative errors instead")
     if step_errors is not None:
         lines.append("per step: " + ", ".join(f"{k} {v:.4g}" for k, v in step_errors.items()
                                               if isinstance(v, (int, float))))

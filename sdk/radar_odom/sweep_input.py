@@ -1,0 +1,87 @@
+"""A sweep as the graph takes it: the Cartesian image on the model's grid (or the reduced polar
+sweep of a polar-input model), optionally de-skewed and drawn in a moved frame.
+
+`graph_input` is a pure function of the sweep, the model's `ModelInfo` and, for a Cartesian
+model, an optional `SweepMotion`: the sensor's velocity over the sweep (de-skew to the first
+azimuth's instant) and a frame to draw the image in (the odometer's gap crossing). Only
+Cartesian models can take either: a polar model's graph reads the sweep as it was recorded.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .polar import polar_to_cartesian
+from .scan import RadarScan
+
+# Below this displacement over one sweep (m, and the yaw's arc at the grid's edge) de-skew moves no
+# pixel by a measurable amount: the cached static maps are used instead (same image within 5 % of
+# a pixel, a fraction of the cost).
+_DESKEW_MIN_FRACTION_PX = 0.05
+
+
+@dataclass(frozen=True)
+class SweepMotion:
+    """How to draw a sweep: ``twist`` (vx m/s, vy m/s, yaw rate rad/s; body frame, constant over
+    the sweep) de-skews it to its first azimuth's instant, or None; ``frame_pose`` (x m, y m,
+    yaw rad; Oxford convention) is the image's frame in the sensor's frame at that instant, or
+    None for the sensor frame."""
+
+    twist: tuple | None = None
+    frame_pose: tuple | None = None
+
+    @property
+    def is_identity(self) -> bool:
+        return self.twist is None and self.frame_pose is None
+
+
+def sweep_duration_s(scan: RadarScan) -> float:
+    """Seconds from the sweep's first to its last azimuth time (0 for a sweep with one time)."""
+    t = np.asarray(scan.timestamps_us, dtype=np.int64)
+    return max(float(t[-1] - t[0]) * 1e-6, 0.0)
+
+
+def deskew_twist(velocity, scan: RadarScan, profile) -> tuple | None:
+    """The twist to de-skew ``scan`` with, or None where it would move no pixel measurably.
+
+    ``velocity``: float[3] (vx m/s, vy m/s, yaw rate rad/s) or None (no estimate yet).
+    """
+    if velocity is None or profile.input_kind == "polar":
+        return None
+    v = np.asarray(velocity, dtype=np.float64).reshape(3)
+    if not np.all(np.isfinite(v)):
+        return None
+    duration = sweep_duration_s(scan)
+    shift_m = duration * (float(np.hypot(v[0], v[1])) + abs(float(v[2])) * profile.extent_m)
+    if shift_m < _DESKEW_MIN_FRACTION_PX * profile.resolution_m:
+        return None
+    return tuple(float(x) for x in v)
+
+
+def graph_input(scan: RadarScan, info, motion: SweepMotion | None = None) -> np.ndarray:
+    """float32[1, W, W] Cartesian image (or [1, A, B'] reduced polar sweep) of ``scan`` for
+    the graph of the model described by ``info`` (a `ModelInfo`); ``motion`` (Cartesian models
+    only) de-skews it and/or draws it in a moved frame (`SweepMotion`)."""
+    p = info.profile
+    if p.input_kind == "polar":
+        if motion is not None and not motion.is_identity:
+            raise ValueError("a polar-input model reads the sweep as recorded: it cannot be de-skewed or moved")
+        spec = info.polar_input or {}
+        nb, f = int(spec.get("num_bins", scan.num_bins)), int(spec.get("bin_factor", 1))
+        power = scan.power[:, : nb * f]
+        if f > 1:  # mean over groups of f range bins, as the exporter's model was fed
+            power = power.reshape(power.shape[0], nb, f).mean(axis=2)
+        # the graph assumes row a at azimuth 2π·a/A: start from the row nearest 0 rad
+        az = scan.azimuths_rad.astype(np.float64)
+        first = int(np.argmin(np.minimum(az, 2 * np.pi - az)))
+        if first:
+            power = np.roll(power, -first, axis=0)
+        return np.ascontiguousarray(power, dtype=np.float32)[None]
+    if motion is None or motion.is_identity:
+        # maps are cached by polar_to_cartesian per geometry, so a stream builds them once
+        cart = polar_to_cartesian(scan, p.resolution_m, p.width_px, near_range_m=p.near_range_m)
+    else:
+        cart = polar_to_cartesian(scan, p.resolution_m, p.width_px, near_range_m=p.near_range_m,
+                                  twist=motion.twist, frame_pose=motion.frame_pose)
+    return cart[None]
