@@ -1,7 +1,8 @@
 """RADIATE sweeps: the transposed headerless PNG, Navtech_Polar.txt times, sequences, bad input.
 
 Synthetic RADIATE folders are written into tmp_path; the real sweeps (``real`` marker) are read
-from ``../shared/data/real/radiate-fog_6_0`` (never copied into the repository).
+from ``../shared/data/real/radiate-fog_6_0`` and ``radiate-2019-02-12-edinburgh`` (never copied
+into the repository).
 """
 import math
 
@@ -12,9 +13,14 @@ import pytest
 from radar_odom import ScanFormatError, SequenceError, load_scan, read_sequence
 from radar_odom.formats import FORMATS, detect_format
 from radar_odom.formats.radiate import (
+    AGREE,
+    DECIMAL,
+    NANOSECONDS,
     RADIATE_RANGE_RESOLUTION_M,
     load_radiate,
+    parse_frame_times,
     parse_radiate_times,
+    read_radiate_times,
     sweep_period_us,
 )
 
@@ -343,3 +349,113 @@ def test_real_radiate_azimuth_zero_points_forward(radiate_dir):
     moved_back = shifts[:, 0]
     assert np.all(moved_back > 1.5) and np.all(moved_back < 4.0), shifts  # forward at 6–16 m/s
     assert np.all(np.abs(shifts[:, 1]) <= 2 * res), shifts  # not sideways
+
+
+
+# ---------------------------------------------------------------- unpadded nanoseconds
+# Some RADIATE time files print the nanoseconds without zero padding: ".4512151" is 4 512 151 ns.
+
+
+def _time_lines(times, first_frame=1) -> str:
+    return "\n".join(f"Frame: {first_frame + k:06d} Time: {t}" for k, t in enumerate(times)) + "\n"
+
+
+def test_unpadded_nanoseconds_are_read_as_nanoseconds():
+    # 4 Hz across a second boundary; read as decimals line 2 (.4512151) would jump back on line 3
+    text = _time_lines(["1549986597.751825190", "1549986598.4512151", "1549986598.253629300",
+                        "1549986598.503659888", "1549986598.750000499", "1549986599.500"])
+    parsed = parse_frame_times(text, "t.txt")
+    assert parsed.reading == NANOSECONDS and parsed.frames == (1, 2, 3, 4, 5, 6)
+    # ns rounded half up to µs, exactly: 190 → 0, 888 → 1, 499 → 0, 500 → 1
+    assert parse_radiate_times(text, "t.txt") == {
+        1: 1549986597751825, 2: 1549986598004512, 3: 1549986598253629,
+        4: 1549986598503660, 5: 1549986598750000, 6: 1549986599000001}
+
+
+def test_short_decimal_fractions_stay_decimals():
+    # read as nanoseconds, .25 / .5 / .75 would be 25, 5, 75 ns: not increasing
+    text = _time_lines(["1574859771.0", "1574859771.25", "1574859771.5", "1574859771.75"])
+    parsed = parse_frame_times(text, "t.txt")
+    assert parsed.reading == DECIMAL
+    assert parsed.times_us == (1574859771000000, 1574859771250000, 1574859771500000, 1574859771750000)
+
+
+def test_nine_digit_fractions_mean_the_same_either_way():
+    parsed = parse_frame_times(_time_lines(TIMES), "t.txt")
+    assert parsed.reading == AGREE and parsed.times_us == tuple(TIMES_US)
+    # no fraction, or a fraction too long to count nanoseconds: decimals only
+    assert parse_frame_times(_time_lines(["1574859771", "1574859772"]), "t").reading == AGREE
+    assert parse_frame_times(_time_lines(["1574859771.1", "1574859772.0000000001"]), "t").reading == DECIMAL
+
+
+def test_when_both_readings_increase_the_more_regular_one_wins():
+    # 4 Hz; the last line read as decimals (.5) increases too, but 0.75 s after the one before
+    text = _time_lines(["1574859771.000000000", "1574859771.250000000", "1574859771.500000000",
+                        "1574859771.750000000", "1574859772.5000000"])
+    parsed = parse_frame_times(text, "t.txt")
+    assert parsed.reading == NANOSECONDS and parsed.times_us[-1] == 1574859772005000  # 5 000 000 ns
+    text = _time_lines(["1574859771.000000000", "1574859771.25", "1574859771.500000000",
+                        "1574859771.750000000", "1574859772.000000000"])
+    assert parse_frame_times(text, "t.txt").reading == DECIMAL  # .25 s fits the 4 Hz spacing
+    # equally regular (a single odd first spacing either way): the decimal reading, RADIATE's documented one
+    text = _time_lines(["1574859771.5", "1574859771.977525228", "1574859772.213924306"])
+    assert parse_frame_times(text, "t.txt").reading == DECIMAL
+
+
+def test_times_that_fail_both_readings_name_the_line_and_both_readings():
+    text = _time_lines(["1574859771.900000000", "1574859771.95", "1574859771.5"])
+    with pytest.raises(SequenceError) as err:
+        parse_radiate_times(text, "t.txt")
+    msg = str(err.value)
+    assert msg.startswith("t.txt, line 3: frame 3 at 1574859771.500000 s is not after frame 2")
+    assert "decimals" in msg and "unpadded nanoseconds" in msg and "line 2: frame 2" in msg
+
+
+def test_a_sample_listed_twice_at_one_time_is_allowed_only_where_asked():
+    # the GNSS/INS file's form: consecutive frames, identical times, unpadded nanoseconds
+    text = _time_lines(["1549986597.950734000", "1549986597.950734000", "1549986598.734000",
+                        "1549986598.734000", "1549986598.50734000", "1549986598.50734000"], first_frame=2009)
+    parsed = parse_frame_times(text, "g.txt", strictly_increasing=False)
+    assert parsed.reading == NANOSECONDS and parsed.frames[0] == 2009 and parsed.lines == (1, 2, 3, 4, 5, 6)
+    assert parsed.times_us == (1549986597950734, 1549986597950734, 1549986598000734, 1549986598000734,
+                               1549986598050734, 1549986598050734)
+    with pytest.raises(SequenceError, match=r"g\.txt, line 2: frame 2010 .* is not after frame 2009"):
+        parse_frame_times(text, "g.txt")
+    with pytest.raises(SequenceError, match=r"line 5: frame 2013 at .* is before frame 2012"):
+        parse_frame_times(_time_lines(["1.100000000", "1.100000000", "1.200000000", "1.200000000", "1.150000000"],
+                                      first_frame=2009), "g.txt",
+                          strictly_increasing=False)
+
+
+@pytest.mark.parametrize("line,match", [
+    ("Frame: 000002 Time: 1574859771744660272", r"line 2: time 1574859771744660272 is not UNIX seconds"),
+    ("Frame: 000002 Time: 1574859771.7446x", r"line 2: cannot read"),
+    ("Frame: 000002 Time: \u0661\u0662.5", r"line 2: cannot read"),  # non-ASCII digits
+])
+def test_garbled_times(line, match):
+    with pytest.raises(SequenceError, match=match):
+        parse_radiate_times(f"Frame: 000001 Time: 1574859771.5\n{line}\n", "t.txt")
+
+
+@pytest.fixture(scope="module")
+def edinburgh_dir(real_data_dir):
+    path = real_data_dir / "radiate-2019-02-12-edinburgh"
+    if not (path / "Navtech_Polar.txt").is_file():
+        pytest.skip(f"no RADIATE city drive at {path}")
+    return path
+
+
+@pytest.mark.real
+def test_real_time_file_with_unpadded_nanoseconds(edinburgh_dir):
+    path = edinburgh_dir / "Navtech_Polar.txt"
+    assert "Frame: 000203 Time: 1549986598.4512151" in path.read_text().splitlines()
+    parsed = parse_frame_times(path.read_text(), str(path))
+    assert parsed.reading == NANOSECONDS
+    times = read_radiate_times(path)
+    assert len(times) == 280 and sorted(times) == list(range(201, 481))
+    stamps = np.array([times[f] for f in sorted(times)])
+    assert np.all(np.diff(stamps) > 0)
+    assert np.median(np.diff(stamps)) / 1e6 == pytest.approx(0.25, abs=0.005)
+    assert times[203] == 1549986598004512  # 1549986598 s + 4 512 151 ns
+    seq = read_sequence(edinburgh_dir)
+    assert len(seq) == 280 and seq.timestamps_us[2] == 1549986598004512

@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from ._progress import progress
-from .errors import ConfigError, OutputError, RunAborted, ScanFormatError, StreamError
+from .errors import ConfigError, OutputError, RunAborted, ScanFormatError, SequenceError, StreamError
 from .odometer import Estimate, RadarOdometer
 from .pipeline import DEFAULT_PREFETCH, NAME_TIME_TOLERANCE_S, Throughput, iter_estimates, throughput  # noqa: F401
 
@@ -71,6 +71,8 @@ class RunResult:
     seconds_per_step: float = float("nan")
     skipped: list = field(default_factory=list)  # dicts: index, path, reason, message
     throughput: Throughput | None = None  # the pace: sweeps/s, stage medians (`pipeline.throughput`)
+    reference: dict | None = None  # GNSS/INS reference: clock_offset_s, heading_offset_deg, how each was found
+    reference_note: str = ""  # one line saying which reference the metrics use (GNSS/INS: its calibration)
 
     @property
     def complete(self) -> bool:
@@ -244,9 +246,10 @@ def write_skipped_csv(path, skipped: list[dict]) -> Path:
     return path
 
 
-def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float = 1.0, show_progress=True,
+def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float | None = None, show_progress=True,
                  plot=True, title=None, motion_prior=True, on_error: str = "skip",
-                 prefetch: int = DEFAULT_PREFETCH) -> RunResult:
+                 prefetch: int = DEFAULT_PREFETCH, deskew: bool | None = None,
+                 gt_time_offset: float | None = None, gt_heading_offset_deg: float | None = None) -> RunResult:
     """Run ``model`` (path or `RadarOdometer`) over the recording ``seq_dir``; write outputs.
 
     ``motion_prior`` (True, False or a `MotionPriorConfig`) is passed to the `RadarOdometer`
@@ -254,7 +257,13 @@ def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float = 1.
     ``"skip"`` (default) or ``"stop"`` for a sweep that cannot be used (module docstring).
     ``prefetch``: sweeps decoded ahead on a worker thread while the graph runs
     (`radar_odom.pipeline.iter_estimates`; 0: no worker). The outputs do not depend on it;
-    ``RunResult.throughput`` reports the pace (`radar_odom.pipeline.throughput`).
+    ``RunResult.throughput`` reports the pace (`radar_odom.pipeline.throughput`). ``max_gap_s``:
+    None crosses every gap (`RadarOdometer`); ``deskew``: None takes the odometer's default.
+    A GNSS/INS reference (RADIATE ``GPS_IMU_Twist/``) is aligned to the radar first:
+    ``gt_time_offset`` (s; the reference for radar time t is the sample at t + offset) and
+    ``gt_heading_offset_deg`` (the INS heading minus the direction of travel, counter-clockwise)
+    are estimated from the data when None (`radar_odom.formats.gnss_ins`) and reported in
+    ``RunResult.reference``.
 
     Raises `OutputError` when ``out_dir`` cannot be a folder, `RunAborted` (``on_error="stop"``,
     after writing the outputs so far), and the typed errors of `read_sequence` / `RadarOdometer`.
@@ -265,8 +274,9 @@ def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float = 1.
         raise ConfigError(f"on_error must be one of {ON_ERROR}, got {on_error!r}")
     out_dir = prepare_output_dir(out_dir)
     seq = read_sequence(seq_dir)
+    extra = {} if deskew is None else {"deskew": bool(deskew)}
     odo = model if isinstance(model, RadarOdometer) else RadarOdometer(
-        model, threads=threads, max_gap_s=max_gap_s, motion_prior=motion_prior)
+        model, threads=threads, max_gap_s=max_gap_s, motion_prior=motion_prior, **extra)
     odo.reset()
     estimates: list[Estimate] = []
     prev_ts: list[int] = []
@@ -276,7 +286,8 @@ def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float = 1.
     def finish(complete: bool) -> RunResult:
         stream.close()
         return _write_outputs(odo, seq, seq_dir, out_dir, estimates, prev_ts, stream.skipped,
-                              stream.throughput(), plot, title, complete)
+                              stream.throughput(), plot, title, complete,
+                              reference_offsets=(gt_time_offset, gt_heading_offset_deg))
 
     def aborted(exc, why: str = "") -> RunAborted:
         result = finish(complete=False)
@@ -308,8 +319,42 @@ def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float = 1.
     return finish(complete=True)
 
 
+def gnss_reference(track, timestamps_us, est_poses, time_offset_s=None, heading_offset_deg=None):
+    """(reference poses float64[N, 3, 3] at ``timestamps_us``, info dict, one-line note) from a
+    GNSS/INS track, its clock and heading offsets given or estimated (None: from the data; the
+    clock by aligning ``est_poses``' yaw increments and step lengths with the track's)."""
+    import math
+
+    from .formats import gnss_ins
+    from .se2 import relative_from_absolute
+
+    info = {}
+    if heading_offset_deg is None:
+        off, iqr, used = gnss_ins.estimate_heading_offset_rad(track)
+        info.update(heading_offset_deg=math.degrees(off), heading_offset_found="estimated",
+                    heading_offset_iqr_deg=math.degrees(iqr), heading_samples=int(used))
+    else:
+        info.update(heading_offset_deg=float(heading_offset_deg), heading_offset_found="given")
+    if time_offset_s is None:
+        clock = gnss_ins.estimate_clock_offset_s(track, timestamps_us, relative_from_absolute(est_poses))
+        info.update(clock_offset_s=float(clock.offset_s), clock_offset_found="estimated",
+                    clock_pairs=int(clock.num_pairs), clock_second_best_ratio=float(clock.second_best_ratio))
+    else:
+        info.update(clock_offset_s=float(time_offset_s), clock_offset_found="given")
+    # the track has holes of up to 0.8 s (shared drive): interpolating a car across them errs by centimetres
+    poses = gnss_ins.poses_at(track, timestamps_us, info["clock_offset_s"], math.radians(info["heading_offset_deg"]),
+                              max_sample_gap_s=1.0)
+    clock_how = ("estimated from the odometry's yaw rate and speed" if info["clock_offset_found"] == "estimated"
+                 else "given")
+    head_how = ("measured on straight stretches" if info["heading_offset_found"] == "estimated" else "given")
+    note = (f"reference: GNSS/INS, clock offset {info['clock_offset_s']:+.3f} s ({clock_how}; the reference for "
+            f"radar time t is the sample at t + offset), INS heading {info['heading_offset_deg']:+.2f} deg from the "
+            f"direction of travel ({head_how}; negative = clockwise), turned onto it")
+    return poses, info, note
+
+
 def _write_outputs(odo, seq, seq_dir, out_dir, estimates, prev_ts, skipped, pace: Throughput, plot, title,
-                   complete: bool) -> RunResult:
+                   complete: bool, reference_offsets=(None, None)) -> RunResult:
     from .metrics import covariance_jitter
     from .trajectory import write_kitti, write_tum
 
@@ -323,6 +368,14 @@ def _write_outputs(odo, seq, seq_dir, out_dir, estimates, prev_ts, skipped, pace
         result.files["skipped"] = write_skipped_csv(out_dir / "skipped.csv", skipped)
     gt = seq.gt_absolute()
     n = len(traj)
+    track = getattr(seq, "reference", None)
+    if gt is None and track is not None and n == len(seq) and n >= 2:
+        try:
+            gt, result.reference, result.reference_note = gnss_reference(
+                track, traj.timestamps_us, traj.poses, *reference_offsets)
+        except (SequenceError, ConfigError) as exc:  # a track that cannot be aligned: say so, no metrics
+            result.reference_note = f"reference: GNSS/INS present but not used ({exc})"
+            gt = None
     if gt is not None and complete and n == len(seq) and len(gt) == n:
         result.gt_poses = gt
         p = odo.info.profile

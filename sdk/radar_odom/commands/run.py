@@ -1,7 +1,7 @@
 """``radar-odom run SEQ [--model M|NAME] [-o OUTDIR]``: odometry over a recorded sequence."""
 from __future__ import annotations
 
-HELP = "odometry over a recording (Oxford layout, Boreas, MulRan); writes trajectories, estimates and a plot"
+HELP = "odometry over a recording (Oxford layout, Boreas, MulRan, RADIATE); writes trajectories, estimates and a plot"
 EXIT_OK, EXIT_ERROR, EXIT_SKIPPED = 0, 1, 3
 EPILOG = (
     "exit status: 0 every sweep was used; 3 the run finished but some sweeps were skipped "
@@ -11,11 +11,17 @@ EPILOG = (
 
 
 def register(subparsers) -> None:
+    import argparse
+
+    from ..odometer import DESKEW_DEFAULT
+
     p = subparsers.add_parser(
         "run", help=HELP,
-        description=HELP + ". Prints the KITTI odometry metric when the recording has ground truth, "
-                           "and then also writes it as ground_truth.tum / ground_truth.kitti beside the "
-                           "estimate (for evo_ape / evo_rpe).",
+        description=HELP + ". Prints the KITTI odometry metric when the recording has ground truth "
+                           "(Oxford radar odometry, Boreas/MulRan poses, RADIATE GNSS/INS aligned in time "
+                           "and heading), and then also writes it as ground_truth.tum / ground_truth.kitti "
+                           "beside the estimate (for evo_ape / evo_rpe). Gaps in the recording are crossed "
+                           "and reported.",
         epilog=EPILOG,
     )
     p.add_argument("sequence", help="recording folder (e.g. SEQ with SEQ/radar/*.png)")
@@ -24,8 +30,19 @@ def register(subparsers) -> None:
                         "default: cart-0.4 if shipped, else the first shipped model")
     p.add_argument("-o", "--output", default=None, help="output folder (default: ./run-<SEQ name>)")
     p.add_argument("--threads", type=int, default=None, help="onnxruntime threads (default: physical cores)")
-    p.add_argument("--max-gap-s", type=float, default=1.0,
-                   help="largest time (s) between consecutive sweeps before the run stops with an error (default: 1.0)")
+    p.add_argument("--max-gap-s", type=float, default=None,
+                   help="stop the run with an error at a larger time (s) between consecutive sweeps (default: "
+                        "none; every gap is crossed, its estimate flagged 'gap' and listed at the end)")
+    p.add_argument("--deskew", action=argparse.BooleanOptionalAction, default=None,
+                   help="motion-compensate each sweep with the velocity so far before matching (default: "
+                        f"{'on' if DESKEW_DEFAULT else 'off'}, as measured on real drives; see README)")
+    p.add_argument("--gt-time-offset", default="auto", metavar="auto|SECONDS",
+                   help="GNSS/INS reference (RADIATE): its clock minus the radar's, in s (the reference for "
+                        "radar time t is the sample at t + offset); 'auto' (default) estimates it by aligning "
+                        "the odometry's yaw rate and speed with the reference, and prints it")
+    p.add_argument("--gt-heading-offset-deg", default="auto", metavar="auto|DEGREES",
+                   help="GNSS/INS reference: the INS heading minus the vehicle's direction of travel, degrees "
+                        "counter-clockwise; 'auto' (default) measures it on straight stretches of the track")
     p.add_argument("--on-error", choices=("skip", "stop"), default="skip",
                    help="a sweep that cannot be read (corrupt file, garbage timestamps): 'skip' reports it, "
                         "bridges the trajectory across it (flagged degenerate) and exits with status 3; "
@@ -45,7 +62,10 @@ def run(args) -> int:
     import warnings
     from pathlib import Path
 
+    import numpy as np
+
     from ..errors import GroundTruthWarning, OutputError, RadarOdomError
+    from ..gaps import GAP
     from ..model_zoo import default_model_name, resolve_model
     from ..pipeline import DEFAULT_PREFETCH
     from ..run import format_metrics, run_sequence
@@ -57,7 +77,9 @@ def run(args) -> int:
         try:
             result = run_sequence(args.sequence, model, out, threads=args.threads, max_gap_s=args.max_gap_s,
                                   plot=not args.no_plot, motion_prior=not args.no_motion_prior,
-                                  on_error=args.on_error, prefetch=0 if args.no_pipeline else DEFAULT_PREFETCH)
+                                  on_error=args.on_error, prefetch=0 if args.no_pipeline else DEFAULT_PREFETCH,
+                                  deskew=args.deskew, gt_time_offset=_offset(args.gt_time_offset, "--gt-time-offset"),
+                                  gt_heading_offset_deg=_offset(args.gt_heading_offset_deg, "--gt-heading-offset-deg"))
         except RadarOdomError:
             _print_warnings(caught, sys.stderr)
             raise
@@ -71,8 +93,17 @@ def run(args) -> int:
     prior = "motion prior off" if args.no_motion_prior else f"{gated} gated, {dominated} prior-dominated"
     print(f"{len(result.timestamps_us)} sweeps, {len(result.estimates)} estimates "
           f"({result.num_degenerate} degenerate; {prior}), {1e3 * result.seconds_per_step:.1f} ms per sweep")
+    if result.reference_note:
+        print(result.reference_note)
     text = format_metrics(result.metrics, result.step_errors)
     print(text if text else "no ground truth in this recording: no metrics")
+    gaps = [(i, e) for i, e in enumerate(result.estimates) if GAP in e.flags]
+    if gaps:
+        dts = np.diff(result.timestamps_us) * 1e-6
+        listed = ", ".join(f"sweep {i + 1} ({dts[i]:.2f} s)" for i, _ in gaps[:8])
+        more = f" and {len(gaps) - 8} more" if len(gaps) > 8 else ""
+        print(f"crossed {len(gaps)} gap(s) (interval > 1.5 nominal periods; flagged 'gap' in estimates.csv): "
+              f"{listed}{more}")
     for kind, path in result.files.items():
         print(f"{kind}: {path}")
     if result.throughput is not None:
@@ -85,6 +116,21 @@ def run(args) -> int:
               f"(bridged, flagged degenerate); exit status {EXIT_SKIPPED}", file=sys.stderr)
         return EXIT_SKIPPED
     return EXIT_OK
+
+
+def _offset(text: str, flag: str):
+    """'auto' → None (estimate it), else the number; a clear error for anything else."""
+    from ..errors import ConfigError
+
+    if str(text).strip().lower() == "auto":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise ConfigError(f"{flag} takes 'auto' or a number, got {text!r}") from None
+    if value != value or value in (float("inf"), float("-inf")):
+        raise ConfigError(f"{flag} must be finite, got {text!r}")
+    return value
 
 
 def _print_warnings(caught, stream) -> None:

@@ -8,7 +8,8 @@
   Oxford recording (used by the simulator).
 
 One module per dataset (`oxford`, `boreas`, `mulran`, `radiate`); the shared PNG row header is
-`_layout`.
+`_layout`. `gnss_ins` reads RADIATE's GNSS/INS samples (``Sequence.reference``) and gives
+reference poses at radar times once its clock and heading offsets are known.
 """
 from .oxford import oxford_gt_rows, write_oxford_ground_truth, write_radar_timestamps, write_scan
 from .scan_io import FORMATS, detect_format, load_scan

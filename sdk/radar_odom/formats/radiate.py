@@ -9,7 +9,15 @@ A sweep PNG is transposed against Oxford (rows = range bins, columns = azimuths)
 metadata columns: no per-azimuth timestamps, no encoder counts, no valid flags. Range bins are
 0.173611 m apart, bin 0 at range 0 (``range_offset_m = 0``, the Oxford reader's and
 `RadarScan`'s convention); 576 bins reach 100 m. The file name is the frame number; the time
-file gives each frame's UNIX time in seconds (read exactly, to the µs).
+file gives each frame's UNIX time in seconds (read exactly, to the µs; see `parse_frame_times`).
+
+Time files (``Navtech_Polar.txt``, and ``GPS_IMU_Twist.txt`` read by `.gnss_ins`) as published:
+some print the nanoseconds **without zero padding**, so ``Time: 1549986598.4512151`` means
+1549986598 s + 4 512 151 ns (= …598.004512151 s), not …598.4512151 s
+(``radiate-2019-02-12-edinburgh``); others print nine digits, where both readings agree
+(``radiate-fog_6_0``). Which one a file means is decided per file: the reading under which
+the times increase with the frame number, and, when both do, the one whose neighbouring
+spacings are the more regular (a misread line stands out as a jump of up to ≈ 1 s).
 
 What this reader assumes, and why:
 
@@ -39,6 +47,7 @@ from __future__ import annotations
 
 import functools
 import re
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -55,7 +64,15 @@ RADIATE_SWEEP_PERIOD_S = 0.25
 POLAR_DIR = "Navtech_Polar"
 TIMES_FILENAME = POLAR_DIR + ".txt"
 
-_LINE = re.compile(r"^\s*Frame:\s*(\d+)\s+Time:\s*(\d+)(?:\.(\d*))?\s*$")
+_LINE = re.compile(r"^\s*Frame:\s*(\d+)\s+Time:\s*(\d+)(?:\.(\d*))?\s*$", re.ASCII)
+# 12 digits of UNIX seconds reach the year 33658; more is a time in another unit (ns, µs)
+# written without its decimal point, and would overflow int64 µs
+_MAX_SECOND_DIGITS = 12
+_NS_DIGITS = 9
+DECIMAL = "decimal"  # the fraction is a decimal fraction of a second: ".45" = 0.45 s
+NANOSECONDS = "nanoseconds"  # the fraction is whole nanoseconds, unpadded: ".45" = 45 ns
+AGREE = "agree"  # every fraction has nine digits (or none): both readings give the same times
+_READ_AS = {DECIMAL: "as decimals", NANOSECONDS: "as unpadded nanoseconds (RADIATE's other form)"}
 
 
 def times_path(sweep_path) -> Path:
@@ -77,14 +94,33 @@ def _seconds_to_us(whole: str, frac: str | None) -> int:
     return us + (1 if len(frac) > 6 and frac[6] >= "5" else 0)
 
 
-def parse_radiate_times(text: str, source: str) -> dict[int, int]:
-    """``{frame number: UNIX µs}`` from the text of a RADIATE ``FOLDER.txt`` time file.
+def _nanoseconds_to_us(whole: str, frac: str | None) -> int:
+    """Seconds and a fraction that counts whole nanoseconds (unpadded) → µs, rounded half up."""
+    ns = int(frac or "0")
+    return int(whole) * 1_000_000 + ns // 1000 + (1 if ns % 1000 >= 500 else 0)
 
-    Raises `SequenceError` naming ``source`` and the line on a garbled line, a repeated frame
-    number, an empty file, or times that do not increase strictly with the frame number.
+
+@dataclass(frozen=True)
+class FrameTimes:
+    """The lines of a RADIATE ``FOLDER.txt`` time file, sorted by frame number.
+
+    Attributes:
+        frames: frame numbers, increasing.
+        times_us: each frame's UNIX time in µs (exact integers), increasing (strictly for a
+            sensor's frames; non-decreasing where the file lists a sample more than once).
+        lines: the 1-based line of the file each frame was read from.
+        reading: how the fractions were read: `DECIMAL`, `NANOSECONDS` or `AGREE`.
     """
-    times: dict[int, int] = {}
-    lines: dict[int, int] = {}
+
+    frames: tuple[int, ...]
+    times_us: tuple[int, ...]
+    lines: tuple[int, ...]
+    reading: str
+
+
+def _parse_lines(text: str, source: str) -> list[tuple[int, int, str, str]]:
+    """``(line, frame, whole seconds, fraction digits)`` per non-blank line, in file order."""
+    out = []
     for lineno, line in enumerate(text.splitlines(), start=1):
         if not line.strip():
             continue
@@ -95,25 +131,130 @@ def parse_radiate_times(text: str, source: str) -> dict[int, int]:
                 "'Frame: NNNNNN Time: SECONDS' (e.g. 'Frame: 000001 Time: 1574859771.744660272'); "
                 "the file is truncated or edited — re-copy it from the RADIATE release"
             )
-        frame = int(m.group(1))
-        if frame in times:
+        if len(m.group(2).lstrip("0")) > _MAX_SECOND_DIGITS:
+            raise SequenceError(
+                f"{source}, line {lineno}: time {m.group(2)[:30]} is not UNIX seconds (more than "
+                f"{_MAX_SECOND_DIGITS} digits before the point: ns or µs without a decimal point?); "
+                "RADIATE time files give seconds, e.g. 'Time: 1574859771.744660272'"
+            )
+        out.append((lineno, int(m.group(1)), m.group(2), m.group(3) or ""))
+    return out
+
+
+def _times_us_as(entries, reading: str) -> list[int] | None:
+    """Each entry's µs under ``reading``; None where the reading cannot apply (a fraction
+    longer than nine digits is not a count of nanoseconds)."""
+    if reading == DECIMAL:
+        return [_seconds_to_us(whole, frac) for _, _, whole, frac in entries]
+    if any(len(frac) > _NS_DIGITS for *_, frac in entries):
+        return None
+    return [_nanoseconds_to_us(whole, frac) for _, _, whole, frac in entries]
+
+
+def _first_disorder(times_us: list[int], strictly: bool) -> int | None:
+    """Index k of the first time not after (``strictly``) or before time k−1, else None."""
+    for k in range(1, len(times_us)):
+        if times_us[k] < times_us[k - 1] or (strictly and times_us[k] == times_us[k - 1]):
+            return k
+    return None
+
+
+def _irregularity_us(times_us: list[int]) -> float:
+    """Mean |spacing − median spacing| of neighbouring times, µs.
+
+    A mean, not a median: a misread fraction shows as one or two odd spacings among many
+    regular ones, and a median would not see them.
+    """
+    if len(times_us) < 3:
+        return 0.0
+    gaps = np.diff(np.array(times_us, dtype=np.float64))
+    return float(np.mean(np.abs(gaps - np.median(gaps))))
+
+
+def _disorder(entries, times_us: list[int], k: int, strictly: bool) -> str:
+    """'line L: frame F at T s is not after frame F0 at T0 s (line L0)' for entry k."""
+    (line0, frame0, *_), (line1, frame1, *_) = entries[k - 1], entries[k]
+    relation = "is not after" if strictly else "is before"
+    return (
+        f"line {line1}: frame {frame1} at {times_us[k] / 1e6:.6f} s {relation} "
+        f"frame {frame0} at {times_us[k - 1] / 1e6:.6f} s (line {line0})"
+    )
+
+
+def parse_frame_times(text: str, source: str, *, strictly_increasing: bool = True) -> FrameTimes:
+    """Read the ``Frame: N Time: S.F`` lines of a RADIATE time file (radar or GNSS/INS).
+
+    The fraction F is read both as a decimal fraction of a second and as whole nanoseconds
+    without zero padding (see the module docstring); the file's reading is the one under which
+    the times increase with the frame number (strictly where ``strictly_increasing``; the
+    GNSS/INS file lists each sample twice with the same time), the more regular one when both
+    do, the decimal one when they tie.
+
+    Args:
+        text: the file's text; blank lines are ignored.
+        source: the file's name, for messages.
+        strictly_increasing: refuse equal times of neighbouring frames.
+
+    Raises:
+        SequenceError: naming ``source`` and the line, on a garbled line, a repeated frame
+            number, an empty file, or times that do not increase under either reading.
+    """
+    entries = _parse_lines(text, source)
+    if not entries:
+        raise SequenceError(f"{source}: the time file lists no frames; re-copy it from the RADIATE release")
+    first_line: dict[int, int] = {}
+    for lineno, frame, *_ in entries:
+        if frame in first_line:
             raise SequenceError(
                 f"{source}, line {lineno}: frame {frame} is listed twice (first on line "
-                f"{lines[frame]}); keep one line per frame"
+                f"{first_line[frame]}); keep one line per frame"
             )
-        times[frame] = _seconds_to_us(m.group(2), m.group(3))
-        lines[frame] = lineno
-    if not times:
-        raise SequenceError(f"{source}: the time file lists no frames; re-copy it from the RADIATE release")
-    frames = sorted(times)
-    for prev, cur in zip(frames[:-1], frames[1:]):
-        if times[cur] <= times[prev]:
-            raise SequenceError(
-                f"{source}, line {lines[cur]}: frame {cur} at {times[cur] / 1e6:.6f} s is not after "
-                f"frame {prev} at {times[prev] / 1e6:.6f} s (line {lines[prev]}); times must increase "
-                "with the frame number — the file is corrupt or its frames are renumbered"
+        first_line[frame] = lineno
+    entries.sort(key=lambda e: e[1])
+    decimal = _times_us_as(entries, DECIMAL)
+    nanos = _times_us_as(entries, NANOSECONDS)
+    if nanos is None:
+        readings = {DECIMAL: decimal}
+    elif nanos == decimal:
+        readings = {AGREE: decimal}
+    else:
+        readings = {DECIMAL: decimal, NANOSECONDS: nanos}
+    disorder = {name: _first_disorder(us, strictly_increasing) for name, us in readings.items()}
+    fits = [name for name, k in disorder.items() if k is None]
+    if not fits:
+        # lead with the reading that holds out longer: the file more likely means that one
+        order = sorted(readings, key=lambda r: -disorder[r])  # stable: decimals first on a tie
+        name = order[0]
+        msg = f"{source}, " + _disorder(entries, readings[name], disorder[name], strictly_increasing)
+        if len(order) == 2:
+            other = order[1]
+            msg += (
+                f" with the fractions read {_READ_AS[name]}; read {_READ_AS[other]} the times fail too, "
+                "at " + _disorder(entries, readings[other], disorder[other], strictly_increasing)
             )
-    return times
+        raise SequenceError(
+            msg + "; times must increase with the frame number — the file is corrupt or its frames "
+            "are renumbered"
+        )
+    # min keeps the first (decimal) of two equally regular readings
+    reading = min(fits, key=lambda name: _irregularity_us(readings[name]))
+    return FrameTimes(
+        frames=tuple(e[1] for e in entries),
+        times_us=tuple(readings[reading]),
+        lines=tuple(e[0] for e in entries),
+        reading=reading,
+    )
+
+
+def parse_radiate_times(text: str, source: str) -> dict[int, int]:
+    """``{frame number: UNIX µs}`` from the text of a RADIATE sensor's ``FOLDER.txt`` time file.
+
+    See `parse_frame_times` (times must increase strictly). Raises `SequenceError` naming
+    ``source`` and the line on a garbled line, a repeated frame number, an empty file, or
+    times that do not increase strictly with the frame number under either reading.
+    """
+    parsed = parse_frame_times(text, source, strictly_increasing=True)
+    return dict(zip(parsed.frames, parsed.times_us))
 
 
 @functools.lru_cache(maxsize=8)

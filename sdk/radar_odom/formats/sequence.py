@@ -10,13 +10,18 @@ Ground truth is always returned in the Oxford relative convention (see `radar_od
 - MulRan: absolute poses of ``global_pose.csv`` at the nearest stamp to each sweep's middle time
   (file name − ``sweep_period_s`` / 2; the true mean azimuth time differs by < 1 ms), converted
   as in `._zup`.
-- RADIATE: none (its GNSS/IMU clock is not the radar's); sweeps are ordered by frame number and
-  timed by ``Navtech_Polar.txt``.
+- RADIATE: none: sweeps are ordered by frame number and timed by ``Navtech_Polar.txt``. Where
+  the sequence has a ``GPS_IMU_Twist/`` folder, ``Sequence.reference`` is its GNSS/INS track
+  (`.gnss_ins.GnssInsTrack`), but it is not turned into ``gt_relative``: its clock is not the
+  radar's (+1.7 s on one drive, ≈ 64 s on another) and its heading is not the vehicle's axis,
+  so the clock offset must be resolved first (`.gnss_ins.estimate_clock_offset_s`,
+  `.gnss_ins.estimate_heading_offset_rad`, then `.gnss_ins.relative_poses_at`).
 
 A pair without ground truth gives a NaN row; no ground truth at all gives ``None``.
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,7 +30,7 @@ import numpy as np
 from ..errors import SequenceError
 from ..scan import RadarScan
 from ..se2 import chain_relative
-from . import boreas, mulran, oxford, radiate
+from . import boreas, gnss_ins, mulran, oxford, radiate
 from ._layout import name_timestamp, to_microseconds
 from ._zup import nearest_poses, oxford_relative_from_zup
 from .scan_io import FORMATS, load_scan
@@ -64,7 +69,8 @@ class Sequence:
 
     ``len(seq)``, ``seq[i]`` and iteration give `Frame` objects. ``timestamps_us`` int64[N]
     (file-name times in µs; RADIATE: frame times), ``paths`` (the PNGs), ``gt_relative``
-    float64[N−1, 3] or None, ``format``, ``root``.
+    float64[N−1, 3] or None, ``format``, ``root``, ``reference`` (RADIATE's GNSS/INS track or
+    None, read on first use).
     """
 
     def __init__(self, root: Path, format: str, paths, timestamps_us, gt_relative, load_kwargs: dict):
@@ -99,6 +105,18 @@ class Sequence:
     def __iter__(self):
         for i in range(len(self)):
             yield self[i]
+
+    @functools.cached_property
+    def reference(self) -> gnss_ins.GnssInsTrack | None:
+        """RADIATE: the GNSS/INS track of ``SEQ/GPS_IMU_Twist/`` (on its own clock, see the module
+        docstring), None where the folder is absent; None for the other formats.
+
+        Read on first use (a few thousand small files), so opening a sequence stays cheap;
+        a garbled GNSS/INS file raises `SequenceError` here, naming it.
+        """
+        if self.format != "radiate":
+            return None
+        return gnss_ins.read_radiate_gnss_ins(self.root)
 
     def gt_absolute(self) -> np.ndarray | None:
         """float64[N, 3, 3] ground-truth poses chained from the first sweep (identity), or None.
