@@ -62,9 +62,10 @@ existed (the velocity is still tracked, for degenerate sweeps and gaps).
 Motion compensation (``deskew=True``; Cartesian models). A spinning radar takes a whole period
 per sweep, so at 10 m/s the scene shifts 2.5 m between its first and last azimuth. With de-skew
 on, each sweep is drawn as seen from the sensor at its first azimuth's instant
-(``scan.timestamp_us``), every azimuth moved by the velocity of the motion so far (the motion
-prior's, constant over the sweep, from each row's timestamp: Oxford and Boreas carry them,
-RADIATE's are spread uniformly over the period; `radar_odom.polar.moving_sample_maps`).
+(``scan.timestamp_us``), every azimuth moved by the velocity of the motion so far (the mean
+of the last ``DESKEW_STEPS`` estimates, constant over the sweep, from each row's timestamp:
+Oxford and Boreas carry them, RADIATE's are spread uniformly over the period;
+`radar_odom.polar.moving_sample_maps`).
 Poses then refer to the first-azimuth instants of the two sweeps. Until the stream has a
 velocity (its first two sweeps) sweeps are drawn as recorded.
 """
@@ -384,9 +385,7 @@ class RadarOdometer:
                 self._append(np.eye(3), ts)
                 return None
             dt_s = (ts - self._stamps[-1]) * 1e-6
-            flags = {GAP} if self._period.is_gap(dt_s) else set()
-            self._period.observe(dt_s)
-            return self._degenerate(str(reason), ts, dt_s, flags=flags)
+            return self._degenerate(str(reason), ts, dt_s, flags=self._interval_flags(dt_s))
 
     def _check_time(self, ts: int, source: str) -> bool:
         """`StreamError` unless ``ts`` may follow the stream (resets it on a gap with
@@ -418,17 +417,17 @@ class RadarOdometer:
             # A stream must start from a sweep that can be matched: a degenerate first sweep is
             # recorded at identity but never becomes the reference.
             if problem is None:
-                self._ref_feed = self._run_first(self._input(scan, prepared))
+                self._ref_feed = self._run_first(self._input(scan, prepared, self._deskew_twist(scan)))
                 self._set_reference(0)
             self._append(np.eye(3), ts)
             return None
         dt_s = (ts - self._stamps[-1]) * 1e-6
-        flags = {GAP} if self._period.is_gap(dt_s) else set()
-        self._period.observe(dt_s)
+        flags = self._interval_flags(dt_s)
         odo_rel = odometry.relative_pose(dt_s) if odometry is not None else None
         if problem is not None:
             return self._degenerate(problem, ts, dt_s, odo_rel, flags)
-        x = self._input(scan, prepared)
+        twist = self._deskew_twist(scan)
+        x = self._input(scan, prepared, twist)
         if self._ref_feed is None:
             # every earlier sweep of this stream was degenerate: nothing to match against yet,
             # so this one gets the prior and becomes the reference
@@ -436,7 +435,7 @@ class RadarOdometer:
             self._ref_feed = self._run_first(x)
             self._set_reference(len(self._poses) - 1)
             return est
-        out = self._match(scan, x, ts)
+        out = self._match(scan, x, ts, twist)
         if out is None:
             return self._degenerate("nonfinite", ts, dt_s, odo_rel, flags)
         pose_ref, cov, new_ref = out
@@ -461,15 +460,22 @@ class RadarOdometer:
         seconds = sum(m[1] for m in self._recent_motion)
         return deskew_twist(poses.sum(axis=0) / seconds, scan, self.profile)
 
-    def _input(self, scan: RadarScan, prepared: PreparedSweep | None) -> np.ndarray:
+    def _interval_flags(self, dt_s: float) -> set:
+        """{"gap"} when ``dt_s`` (since the previous sweep) is a gap, else empty; then the interval
+        joins the nominal period's history."""
+        flags = {GAP} if self._period.is_gap(dt_s) else set()
+        self._period.observe(dt_s)
+        return flags
+
+    def _input(self, scan: RadarScan, prepared: PreparedSweep | None, twist) -> np.ndarray:
         """The graph input of the sweep as the stream takes it: de-skewed when that is on (the
-        prepared image is drawn without the velocity, which only the stream knows)."""
-        twist = self._deskew_twist(scan)
+        prepared image is drawn without the velocity, which only the stream knows); ``twist``:
+        `_deskew_twist`'s, or None."""
         if twist is not None:
             return self._sweep_input(scan, SweepMotion(twist=twist))
         return self._sweep_input(scan) if prepared is None else prepared.input
 
-    def _match(self, scan: RadarScan, x: np.ndarray, ts: int):
+    def _match(self, scan: RadarScan, x: np.ndarray, ts: int, twist):
         """(pose, cov, new reference) of the new sweep against the reference, or None if non-finite.
 
         Where the reference is further back than a gap (`radar_odom.gaps`) and the prior can
@@ -485,7 +491,7 @@ class RadarOdometer:
             return self._run_pair(x)
         predicted = pred[0]
         frame = to_xyyaw(invert(se2(*predicted)))
-        moved = self._sweep_input(scan, SweepMotion(twist=self._deskew_twist(scan), frame_pose=tuple(frame)))
+        moved = self._sweep_input(scan, SweepMotion(twist=twist, frame_pose=tuple(frame)))
         out = self._run_pair(moved, keep_reference=True)
         if out is None:
             return None

@@ -120,6 +120,8 @@ def run(args) -> int:
 
 def _offset(text: str, flag: str):
     """'auto' → None (estimate it), else the number; a clear error for anything else."""
+    import math
+
     from ..errors import ConfigError
 
     if str(text).strip().lower() == "auto":
@@ -128,7 +130,7 @@ def _offset(text: str, flag: str):
         value = float(text)
     except ValueError:
         raise ConfigError(f"{flag} takes 'auto' or a number, got {text!r}") from None
-    if value != value or value in (float("inf"), float("-inf")):
+    if not math.isfinite(value):
         raise ConfigError(f"{flag} must be finite, got {text!r}")
     return value
 

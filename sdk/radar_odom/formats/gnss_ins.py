@@ -396,9 +396,8 @@ def relative_poses_at(
 ) -> np.ndarray:
     """float64[N−1, 3] Oxford ``(x, y, yaw)`` of time k+1 in time k (see `poses_at`); NaN rows
     where either pose is unknown."""
-    world = se2_batch(_world_xyh(track, times_us, clock_offset_s, heading_offset_rad, max_sample_gap_s))
-    rel = relative_from_absolute(world)
-    return rel * np.array([1.0, -1.0, -1.0])  # the mirror of _to_oxford on (x, y, yaw)
+    # relative poses do not depend on the frame `poses_at` anchors them in
+    return relative_from_absolute(poses_at(track, times_us, clock_offset_s, heading_offset_rad, max_sample_gap_s))
 
 
 # ---------------------------------------------------------------------------------- clock
