@@ -88,6 +88,8 @@ class TrainConfig:
     resume: bool = False
     init_from: str | None = None  # start from another checkpoint's weights (same U-Net shape)
     steps_per_epoch: int | None = None  # cap (None: a full pass over the training pairs)
+    real_fraction: float = 0.25  # share of real pairs in the training set when real drives are given
+    real_max_skip: int = 4  # real pairs (k, k + s) for s = 1 … this (`real_pairs.SkipPairs`)
     info: dict = field(default_factory=dict)  # provenance: command, seeds, scenarios, data...
 
     @property
@@ -362,9 +364,14 @@ def _config_record(cfg: TrainConfig) -> dict:
 
 
 def train(
-    cfg: TrainConfig, train_drives: Sequence[Drive], val_drives: Sequence[Drive], dist: Dist | None = None
+    cfg: TrainConfig, train_drives: Sequence[Drive], val_drives: Sequence[Drive], dist: Dist | None = None,
+    real_drives: Sequence[Drive] = (),
 ) -> dict:
     """Train (or, for a `TRAINING_FREE` masking, just describe) a model; returns the run summary.
+
+    ``real_drives`` (real recordings with reference poses, their held-out stretch already cut
+    off: `real_pairs.real_drive`) are mixed into the training set (`real_pairs.MixedPairs`,
+    ``cfg.real_fraction``), as skip-k pairs with gain and floor randomised.
 
     Writes ``cfg.output`` (best checkpoint), ``<out>.state.pt``, ``<out>.log.json`` and
     ``<out>.loss.png`` from rank 0. With ``cfg.resume`` it continues from ``<out>.state.pt``.
@@ -380,6 +387,14 @@ def train(
     deadline = None if cfg.minutes is None else t_start + 60.0 * cfg.minutes
     with_labels = cfg.objective == "masks"
     train_set = PairDataset(train_drives, augment=cfg.augment, with_labels=with_labels, seed=cfg.seed)
+    if real_drives:
+        from .real_pairs import GainFloor, MixedPairs, SkipPairs
+
+        if with_labels:
+            raise DataSpecError("real recordings carry no static-world labels: --real and --supervised-masks "
+                                "cannot be combined")
+        real_set = SkipPairs(real_drives, cfg.profile, cfg.real_max_skip, cfg.augment, GainFloor(), cfg.seed)
+        train_set = MixedPairs(train_set, real_set, cfg.real_fraction, cfg.seed)
     val_set = PairDataset(val_drives, augment=NO_AUGMENT, with_labels=with_labels, seed=cfg.seed)
     model = MaskedCorrelator(cfg.profile, masking=cfg.masking, dft="fft").to(d.device)
     objective = Objective(model, cfg.objective, cfg.yaw_weight, cfg.pose_loss)
@@ -389,6 +404,8 @@ def train(
         threads_per_rank=threads,
         torch=torch.__version__,
         train_pairs=len(train_set),
+        real_pairs=len(train_set.real) if real_drives else 0,
+        real_drives=[x.name for x in real_drives],
         val_pairs=len(val_set),
         train_drives=[x.name for x in train_drives],
         val_drives=[x.name for x in val_drives],
@@ -778,9 +795,18 @@ def run_from_args(args) -> dict:
             resume=args.resume,
             init_from=getattr(args, "init_from", None),
             steps_per_epoch=args.steps_per_epoch,
+            real_fraction=getattr(args, "real_fraction", 0.25),
             info=info,
         )
-        summary = train(cfg, train_drives, val_drives, d)
+        real = []
+        if getattr(args, "real", None):
+            from .real_pairs import real_drive
+
+            with main_first(d):
+                real = [real_drive(p, profile, args.real_holdout) for p in args.real]
+            info.update(real=[Path(p).name for p in args.real], real_holdout=args.real_holdout,
+                        real_fraction=args.real_fraction)
+        summary = train(cfg, train_drives, val_drives, d, real_drives=real)
         if d.main:
             print(
                 f"wrote {cfg.output}: best validation loss {summary.get('best_val', float('nan')):.4g} "

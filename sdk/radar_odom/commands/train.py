@@ -64,6 +64,15 @@ def register(subparsers) -> None:
         "validation drives always use the oxford preset",
     )
     g.add_argument("--workers", type=int, default=2, help="processes simulating drives (default: %(default)s)")
+    g.add_argument("--real", action="append", default=None, metavar="SEQ",
+                   help="a real recording with ground truth (Oxford gt, Boreas/MulRan poses, RADIATE GNSS/INS "
+                        "aligned as `run` aligns it) whose pairs (k, k+1 … k+4) are mixed into every epoch of "
+                        "simulated training pairs; repeatable")
+    g.add_argument("--real-fraction", type=float, default=0.25,
+                   help="share of training pairs drawn from the --real recordings (default: %(default)s)")
+    g.add_argument("--real-holdout", type=int, default=80,
+                   help="sweeps at the end of each --real recording never trained on, kept for an honest "
+                        "test (benchmarks/real_drive.py --stretch) (default: %(default)s)")
     g = p.add_argument_group("optimisation")
     g.add_argument("--epochs", type=int, default=30, help="maximum epochs (default: %(default)s)")
     g.add_argument(
