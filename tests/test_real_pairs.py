@@ -102,3 +102,18 @@ def test_the_held_out_stretch_of_the_shared_drive_is_never_a_training_pair(real_
     assert 300 < np.linalg.norm(drive.poses_rel[:, :2], axis=1).sum() < 380
     pairs = SkipPairs([drive], profile, max_skip=4)
     assert max(b for _, _, b in pairs.index) == 199 and len(pairs) > 3 * 199
+
+
+@pytest.mark.real
+def test_the_real_mask_figure_draws_a_held_out_sweep(real_data_dir, tmp_path):
+    import importlib.util
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    spec = importlib.util.spec_from_file_location("real_mask_figure", root / "examples" / "real_mask_figure.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    out = tmp_path / "mask.png"
+    ckpt = root / "export" / "radar_odom_export" / "checkpoints" / "cart-0.4.pt"
+    assert mod.main([str(ckpt), "-o", str(out), "--drive", str(real_data_dir / DRIVE), "--sweep", "240"]) == 0
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
