@@ -217,3 +217,13 @@ def test_run_warns_about_bad_ground_truth_rows_by_line(model_path, drive, tmp_pa
     captured = capsys.readouterr()
     assert "warning:" in captured.err and "line 3" in captured.err
     assert f"1 of {FRAMES - 1} steps lack ground truth" in captured.out
+
+
+def test_run_help_lists_every_layout_and_bags_and_run_names_its_model(model_path, drive, tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        main(["run", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    for layout in ("Oxford", "Boreas", "MulRan", "RADIATE", "ROS 1 .bag", "--topic", "--bag-out"):
+        assert layout in text, layout
+    assert main(["run", str(drive), "--model", str(model_path), "-o", str(tmp_path / "o"), "--no-plot"]) == 0
+    assert f"model: {model_path}" in capsys.readouterr().out

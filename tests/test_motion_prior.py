@@ -304,7 +304,9 @@ def test_external_odometry_is_an_arc_with_a_full_rank_covariance():
     np.testing.assert_allclose(pose, [10 * np.sin(0.05) / 0.2, 10 * (1 - np.cos(0.05)) / 0.2, 0.05], rtol=1e-12)
     assert pose[1] > 0  # positive yaw rate turns right: y (right) grows
     assert np.linalg.eigvalsh(cov).min() > 0 and np.allclose(cov, cov.T)
-    assert cov[0, 0] == pytest.approx((0.1 * DT) ** 2, rel=1e-3)
+    assert cov[0, 0] == pytest.approx((0.10 * 10.0 * DT) ** 2, rel=1e-3)  # default: 10 % of the speed
+    _, slow = ExternalOdometry(speed_mps=0.5).relative_pose(DT)
+    assert slow[0, 0] == pytest.approx((0.1 * DT) ** 2, rel=1e-3)  # its 0.1 m/s floor
     assert cov[2, 2] == pytest.approx((0.5 * DEG * DT) ** 2)
     straight, _ = ExternalOdometry(speed_mps=4.0, yaw_rate_rps=0.0).relative_pose(DT)
     np.testing.assert_allclose(straight, [1.0, 0.0, 0.0], atol=1e-15)
@@ -340,6 +342,27 @@ def test_external_odometry_carries_what_the_radar_leaves_unconstrained():
     res = prior.update(meas[0], covs[0], DT, odometry={"speed_mps": truth[0, 0] / DT, "speed_std_mps": 0.05},
                        use_prediction=False)
     assert abs(res.pose[0] - truth[0, 0]) < 0.05
+
+
+def test_a_wheel_speed_14_percent_off_does_not_overrule_a_sharp_radar_match():
+    """The new user's case: driving straight at 11.4 m/s, radar matches with σ ≈ 2.4 cm, and the
+    README's ExternalOdometry(speed_mps=9.8) (14 % low). With a fixed 0.1 m/s the wheel speed
+    called the match a 16σ outlier: gated, the pose the wheel's. With the default (10 % of the
+    speed) the match passes the gate and carries the pose to within a centimetre."""
+    v_true = 11.4
+    step = np.array([v_true * DT, 0.0, 0.0])
+    cov = np.diag([0.024**2, 0.024**2, (0.05 * DEG) ** 2])
+    results = {}
+    for label, std in (("fixed 0.1 m/s", 0.1), ("default", None)):
+        prior = MotionPrior(MotionPriorConfig())
+        for _ in range(6):  # a steady drive: the constant-velocity prediction knows 11.4 m/s
+            prior.update(step, cov, DT)
+        results[label] = prior.update(step, cov, DT, odometry=ExternalOdometry(speed_mps=9.8, speed_std_mps=std))
+    assert GATED in results["fixed 0.1 m/s"].flags
+    assert abs(results["fixed 0.1 m/s"].pose[0] - step[0]) > 0.1  # the wheel's (and prediction's) blend won
+    good = results["default"]
+    assert not good.flags & {GATED, PRIOR_DOMINATED}, good.flags
+    assert abs(good.pose[0] - step[0]) < 0.01
 
 
 # --------------------------------------------------------------------------- in RadarOdometer

@@ -265,3 +265,30 @@ def test_rss_stream_in_a_fresh_process(tiny_model):
     assert [s[0] for s in r["samples"]] == [1, 10, 20]
     assert 0 < r["samples"][-1][1] <= r["peak_mb"] < 1000
     assert r["growth_from_step"] == 10 and r["growth_mb"] == pytest.approx(r["samples"][-1][1] - r["samples"][1][1])
+
+
+def test_profile_defaults_leave_out_unshipped_profiles_without_torch_and_say_so():
+    """`radar-odom profile` with no arguments in the README's command-1 install (no torch): the
+    default profiles are the shipped models' (cart-0.2 is not shipped and could not be exported),
+    with a note naming --profiles; with torch, all of them."""
+    from radar_odom import pretrained_names
+    from radar_odom.commands.profile import PROFILE_NAMES, default_profile_names
+
+    notes = []
+    names = default_profile_names(torch_available=False, echo=notes.append)
+    assert names == [n for n in PROFILE_NAMES if n in pretrained_names()] and "cart-0.2" not in names
+    assert names  # something is still profiled
+    assert len(notes) == 1 and "cart-0.2" in notes[0] and "--profiles" in notes[0]
+    assert default_profile_names(torch_available=True, echo=notes.append) == list(PROFILE_NAMES)
+
+
+def test_profile_without_torch_for_an_unshipped_profile_names_the_way_out(monkeypatch, tmp_path):
+    import subprocess
+
+    from radar_odom.errors import RadarOdomError
+    from radar_odom.latency import models
+
+    monkeypatch.setattr(subprocess, "run", lambda *a, **k: subprocess.CompletedProcess(
+        a, 1, "", "ModuleNotFoundError: No module named 'torch'"))
+    with pytest.raises(RadarOdomError, match=r"--profiles.*--models PATH.onnx.*pip install -e \"\.\[export\]\""):
+        models.untrained_model("cart-0.2", tmp_path)

@@ -36,6 +36,8 @@ _LAZY = {
     "Estimate": "odometer",
     "MotionPriorConfig": "motion_prior",
     "ExternalOdometry": "motion_prior",
+    "read_bag": "formats.bag",
+    "open_bag": "formats.bag",
 }
 
 __all__ = sorted(_LAZY) + ["__version__"]

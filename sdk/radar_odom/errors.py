@@ -28,13 +28,27 @@ class ExportError(RadarOdomError, ValueError):
     the tolerance. Defined here only; ``radar_odom_export`` raises this class."""
 
 
+#: the PyTorch wheel index of CPU-only builds: without it pip fetches a multi-GB CUDA torch
+TORCH_CPU_INDEX = "https://download.pytorch.org/whl/cpu"
+TORCH_VERSION = "2.13.0"
+#: how to install the export extra (torch) without a CUDA build, from a checkout or from an index
+EXPORT_INSTALL_HINT = (
+    f"pip install torch=={TORCH_VERSION} --extra-index-url {TORCH_CPU_INDEX} (the CPU build; a plain torch "
+    "requirement pulls a multi-GB CUDA build), then pip install -e \".[export]\" in a checkout, or "
+    "pip install \"radar-odom[export]\""
+)
+
+
 class MissingExtraError(RadarOdomError, ImportError):
-    """An optional dependency is not installed; the message gives the pip line."""
+    """An optional dependency is not installed; the message gives the pip lines (installed
+    package and checkout; for the ``export`` extra the CPU torch build first)."""
 
     def __init__(self, module: str, extra: str):
-        super().__init__(
-            f"{module!r} is needed for this; install it with: pip install \"radar-odom[{extra}]\""
-        )
+        if extra == "export":
+            how = EXPORT_INSTALL_HINT
+        else:
+            how = f"pip install \"radar-odom[{extra}]\" (in a checkout: pip install -e \".[{extra}]\")"
+        super().__init__(f"{module!r} is needed for this (the {extra} extra); install it with: {how}")
 
 
 class InvalidModelError(ModelMismatchError):

@@ -150,6 +150,12 @@ class MotionPriorConfig:
         return np.diag((s * float(tau_s) * float(dt_s)) ** 2)
 
 
+#: default 1σ of an external speed, as a fraction of the speed (a wheel speed's scale error)
+SPEED_STD_FRACTION = 0.10
+#: and its floor, m/s (standing still, creeping)
+SPEED_STD_FLOOR_MPS = 0.1
+
+
 @dataclass(frozen=True)
 class ExternalOdometry:
     """Per-sweep odometry from another sensor (wheel speed, IMU yaw rate), for `RadarOdometer.step`.
@@ -164,14 +170,20 @@ class ExternalOdometry:
     Attributes:
         speed_mps: forward speed, m/s, or None.
         yaw_rate_rps: yaw rate, rad/s (positive: turning right), or None.
-        speed_std_mps: 1σ of the speed, m/s.
+        speed_std_mps: 1σ of the speed, m/s; None (default): `SPEED_STD_FRACTION` of the speed,
+            at least `SPEED_STD_FLOOR_MPS` (`speed_std`). A wheel speed is a scale error first
+            (tyre radius, load, slip, a CAN speed rounded for the dashboard): measured against a
+            GNSS track, one is easily 10 % off, and a fixed 0.1 m/s called a 14 % error at 11 m/s a
+            16σ outlier, so the χ² gate threw out a sharp radar match (σ 2.4 cm) and kept the wheel
+            speed. With the default a wheel speed 14 % off is ≈ 1.4σ, the match is not gated and,
+            being far sharper, carries the fused pose (test_motion_prior measures this case).
         yaw_rate_std_rps: 1σ of the yaw rate, rad/s.
         lateral_std_mps: 1σ of the sideways velocity the arc model leaves out, m/s.
     """
 
     speed_mps: float | None = None
     yaw_rate_rps: float | None = None
-    speed_std_mps: float = 0.1
+    speed_std_mps: float | None = None
     yaw_rate_std_rps: float = float(np.deg2rad(0.5))
     lateral_std_mps: float = 0.2
 
@@ -184,8 +196,18 @@ class ExternalOdometry:
                 raise ValueError(f"ExternalOdometry.{name} must be finite, got {v!r}")
         for name in ("speed_std_mps", "yaw_rate_std_rps", "lateral_std_mps"):
             v = getattr(self, name)
+            if v is None and name == "speed_std_mps":
+                continue
             if not (np.isfinite(v) and v > 0):
                 raise ValueError(f"ExternalOdometry.{name} must be a positive number, got {v!r}")
+
+    @property
+    def speed_std(self) -> float:
+        """The speed's 1σ in use (m/s): ``speed_std_mps``, or by default `SPEED_STD_FRACTION` ×
+        |speed|, at least `SPEED_STD_FLOOR_MPS`."""
+        if self.speed_std_mps is not None:
+            return float(self.speed_std_mps)
+        return max(SPEED_STD_FLOOR_MPS, SPEED_STD_FRACTION * abs(float(self.speed_mps or 0.0)))
 
     @classmethod
     def coerce(cls, value) -> ExternalOdometry | None:
@@ -218,7 +240,7 @@ class ExternalOdometry:
         pose = np.array([v * dt * s, v * dt * c, th])
         # Jacobian wrt (v, ω): d/dω = d/dth · dt
         j = np.array([[dt * s, v * dt * ds * dt], [dt * c, v * dt * dc * dt], [0.0, dt]])
-        var_v = UNKNOWN_VARIANCE / max(dt * dt, 1e-12) if self.speed_mps is None else self.speed_std_mps**2
+        var_v = UNKNOWN_VARIANCE / max(dt * dt, 1e-12) if self.speed_mps is None else self.speed_std**2
         var_w = UNKNOWN_VARIANCE / max(dt * dt, 1e-12) if self.yaw_rate_rps is None else self.yaw_rate_std_rps**2
         cov = j @ np.diag([var_v, var_w]) @ j.T
         cov[1, 1] += (self.lateral_std_mps * dt) ** 2

@@ -249,7 +249,8 @@ def write_skipped_csv(path, skipped: list[dict]) -> Path:
 def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float | None = None, show_progress=True,
                  plot=True, title=None, motion_prior=True, on_error: str = "skip",
                  prefetch: int = DEFAULT_PREFETCH, deskew: bool | None = None,
-                 gt_time_offset: float | None = None, gt_heading_offset_deg: float | None = None) -> RunResult:
+                 gt_time_offset: float | None = None, gt_heading_offset_deg: float | None = None,
+                 topic: str | None = None, bag_geometry: dict | None = None, bag_out=None) -> RunResult:
     """Run ``model`` (path or `RadarOdometer`) over the recording ``seq_dir``; write outputs.
 
     ``motion_prior`` (True, False or a `MotionPriorConfig`) is passed to the `RadarOdometer`
@@ -265,15 +266,21 @@ def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float | No
     are estimated from the data when None (`radar_odom.formats.gnss_ins`) and reported in
     ``RunResult.reference``.
 
+    ROS bags (``seq_dir`` a ``.bag`` / ``.mcap`` / ROS 2 bag folder, the ``ros`` extra): the radar
+    ``topic`` (None: the bag's only radar topic) is read as `radar_odom.formats.bag.BagSequence`
+    with ``bag_geometry`` (`radar_odom.ros_msgs.PolarImageGeometry` fields). ``bag_out``: a path
+    for a ROS 2 MCAP bag of ``nav_msgs/Odometry`` and TF (`radar_odom.bag_out`), written with the
+    other outputs (``RunResult.files["bag"]``).
+
     Raises `OutputError` when ``out_dir`` cannot be a folder, `RunAborted` (``on_error="stop"``,
     after writing the outputs so far), and the typed errors of `read_sequence` / `RadarOdometer`.
     """
-    from .formats import read_sequence
-
     if on_error not in ON_ERROR:
         raise ConfigError(f"on_error must be one of {ON_ERROR}, got {on_error!r}")
     out_dir = prepare_output_dir(out_dir)
-    seq = read_sequence(seq_dir)
+    seq = open_recording(seq_dir, topic, bag_geometry)
+    if bag_out is not None and Path(bag_out).exists():  # before the run, not after it
+        raise OutputError(f"{bag_out}: exists; --bag-out writes a new ROS 2 bag folder, give a new path")
     extra = {} if deskew is None else {"deskew": bool(deskew)}
     odo = model if isinstance(model, RadarOdometer) else RadarOdometer(
         model, threads=threads, max_gap_s=max_gap_s, motion_prior=motion_prior, **extra)
@@ -285,9 +292,12 @@ def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float | No
 
     def finish(complete: bool) -> RunResult:
         stream.close()
-        return _write_outputs(odo, seq, seq_dir, out_dir, estimates, prev_ts, stream.skipped,
-                              stream.throughput(), plot, title, complete,
-                              reference_offsets=(gt_time_offset, gt_heading_offset_deg))
+        result = _write_outputs(odo, seq, seq_dir, out_dir, estimates, prev_ts, stream.skipped,
+                                stream.throughput(), plot, title, complete,
+                                reference_offsets=(gt_time_offset, gt_heading_offset_deg))
+        if bag_out is not None:
+            result.files["bag"] = _write_bag(bag_out, seq, result)
+        return result
 
     def aborted(exc, why: str = "") -> RunAborted:
         result = finish(complete=False)
@@ -317,6 +327,28 @@ def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float | No
     finally:
         bar.close()
     return finish(complete=True)
+
+
+def open_recording(source, topic: str | None = None, bag_geometry: dict | None = None):
+    """A recording folder (`read_sequence`) or a ROS bag (`radar_odom.formats.bag.open_bag`)."""
+    from .formats import read_sequence
+    from .formats.bag import is_bag, open_bag
+
+    if topic is not None or is_bag(source):
+        return open_bag(source, topic, **(bag_geometry or {}))
+    if bag_geometry:
+        raise ConfigError("the bag options (range resolution, sweep period, stamp, ...) apply to ROS bags only; "
+                          f"{source} is not a bag")
+    return read_sequence(source)
+
+
+def _write_bag(path, seq, result: RunResult) -> Path:
+    """The run's odometry as a ROS 2 bag, stamped with the input messages' stamps where known."""
+    from .bag_out import write_odometry_bag
+
+    by_first_us = dict(zip(getattr(seq, "timestamps_us", ()).tolist(), getattr(seq, "stamps_ns", ())))
+    stamps = [int(by_first_us.get(int(t), int(t) * 1000)) for t in result.timestamps_us]
+    return write_odometry_bag(path, result.timestamps_us, result.poses, result.estimates, stamps)
 
 
 def gnss_reference(track, timestamps_us, est_poses, time_offset_s=None, heading_offset_deg=None):

@@ -16,15 +16,17 @@ def register(subparsers) -> None:
             "groups the graph's time by operator class with onnxruntime's profiler, and times the same "
             "search in numpy (pocketfft) on the same masked images. Writes OUT/profile.json and "
             "OUT/profile.md. A profile with no model given and none shipped gets an untrained model exported "
-            "on the fly (needs torch: pip install \"radar-odom[export]\"); weights do not change the time."
+            "on the fly (needs torch, the export extra; weights do not change the time); without torch the "
+            "default --profiles are the shipped models' only."
         ),
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     p.add_argument("--models", nargs="*", default=[], metavar="NAME|PATH",
                    help="shipped model names (radar_odom.pretrained_names()) or exported .onnx files")
-    p.add_argument("--profiles", nargs="*", default=list(PROFILE_NAMES), metavar="PROFILE",
+    p.add_argument("--profiles", nargs="*", default=None, metavar="PROFILE",
                    help="grid profiles to cover; one without a model in --models uses the shipped model of that "
-                        "name, or else an untrained export")
+                        f"name, or else an untrained export (default: {' '.join(PROFILE_NAMES)}; without torch "
+                        "only those with a shipped model)")
     p.add_argument("--search", choices=("fast", "exhaustive"), default="fast",
                    help="rotation search of the untrained exports: coarse-to-fine, or every yaw candidate")
     p.add_argument(
@@ -63,12 +65,34 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
+def default_profile_names(torch_available: bool | None = None, echo=print) -> list[str]:
+    """`PROFILE_NAMES`, less those with no shipped model when torch (needed to export an untrained
+    one) is not installed; each one left out is named, with what to do."""
+    import importlib.util
+
+    from ..model_zoo import pretrained_names
+
+    if torch_available is None:
+        torch_available = all(importlib.util.find_spec(m) is not None for m in ("torch", "radar_odom_export"))
+    if torch_available:
+        return list(PROFILE_NAMES)
+    shipped = set(pretrained_names())
+    keep = [n for n in PROFILE_NAMES if n in shipped]
+    for name in PROFILE_NAMES:
+        if name not in shipped:
+            echo(f"note: profile {name} left out: no shipped model, and torch is not installed to export an "
+                 f"untrained one (install the export extra, or pass --models PATH.onnx --profiles {name})")
+    return keep
+
+
 def run(args) -> int:
     import shlex
     import sys
 
     from ..latency import run_profile
 
+    if args.profiles is None:
+        args.profiles = default_profile_names()
     if args.steps < 200:
         print(f"note: --steps {args.steps} is below 200; p99 over so few steps is rough")
     run_profile(

@@ -1,7 +1,8 @@
 """``radar-odom run SEQ [--model M|NAME] [-o OUTDIR]``: odometry over a recorded sequence."""
 from __future__ import annotations
 
-HELP = "odometry over a recording (Oxford layout, Boreas, MulRan, RADIATE); writes trajectories, estimates and a plot"
+HELP = ("odometry over a recording (Oxford layout, Boreas, MulRan, RADIATE, or a ROS 1/ROS 2 bag); writes "
+        "trajectories, estimates and a plot")
 EXIT_OK, EXIT_ERROR, EXIT_SKIPPED = 0, 1, 3
 EPILOG = (
     "exit status: 0 every sweep was used; 3 the run finished but some sweeps were skipped "
@@ -24,7 +25,10 @@ def register(subparsers) -> None:
                            "and reported.",
         epilog=EPILOG,
     )
-    p.add_argument("sequence", help="recording folder (e.g. SEQ with SEQ/radar/*.png)")
+    p.add_argument("sequence",
+                   help="recording folder (Oxford or Boreas SEQ/radar/*.png, MulRan SEQ/polar/*.png, RADIATE "
+                        "SEQ/Navtech_Polar/*.png), or a ROS bag: a ROS 1 .bag, a ROS 2 bag folder or an .mcap "
+                        "file (needs the ros extra: pip install \"radar-odom[ros]\")")
     p.add_argument("-m", "--model", default=None,
                    help="exported .onnx file, or the name of a shipped model (radar_odom.pretrained_names()); "
                         "default: cart-0.4 if shipped, else the first shipped model")
@@ -54,7 +58,41 @@ def register(subparsers) -> None:
     p.add_argument("--no-motion-prior", action="store_true",
                    help="report the raw matches: no fusion with the constant-velocity motion prior "
                         "(on by default; see radar_odom.motion_prior)")
+    _register_bag_options(p)
     p.set_defaults(func=run)
+
+
+def _register_bag_options(p) -> None:
+    from ..ros_msgs import NAVTECH_SWEEP_PERIOD_S, STAMP_POSITIONS
+    from ..scan import OXFORD_ENCODER_SIZE, OXFORD_RANGE_RESOLUTION_M
+
+    g = p.add_argument_group(
+        "ROS bags", "sensor_msgs/Image (mono8/mono16) or PNG CompressedImage polar sweeps, one row per azimuth, or "
+                    "the Navtech driver's navtech_msgs/msg/RadarBScanMsg (its own azimuth times and encoder angles)")
+    g.add_argument("--topic", default=None,
+                   help="the radar topic, e.g. /Navtech/Polar (default: the bag's only radar topic; a wrong one "
+                        "lists the topics there are)")
+    g.add_argument("--bag-out", default=None, metavar="PATH",
+                   help="also write the odometry as a ROS 2 bag (MCAP) folder: nav_msgs/Odometry on "
+                        "/radar_odom/odometry (3x3 covariance in the x, y, yaw cells of the 6x6) and TF odom -> "
+                        "base_link on /tf, stamped with the sweeps' header stamps")
+    g.add_argument("--range-resolution-m", type=float, default=None,
+                   help=f"metres per range bin (column) (default {OXFORD_RANGE_RESOLUTION_M}, Oxford; MulRan 0.0595)")
+    g.add_argument("--range-offset-m", type=float, default=None, help="range of column 0, m (default 0)")
+    g.add_argument("--sweep-period-s", type=float, default=None,
+                   help=f"time of one turn; an Image's azimuth times are spread evenly over it "
+                        f"(default {NAVTECH_SWEEP_PERIOD_S})")
+    g.add_argument("--stamp", choices=STAMP_POSITIONS, default=None,
+                   help="where in the sweep an Image's header stamp lies (default first: the first azimuth, as "
+                        "Oxford's file names)")
+    g.add_argument("--azimuth-offset-rad", type=float, default=None,
+                   help="angle of an Image's row 0, rad (default 0)")
+    g.add_argument("--encoder-size", type=int, default=None,
+                   help=f"encoder ticks per turn of a B-scan's encoder_values (default {OXFORD_ENCODER_SIZE})")
+
+
+BAG_OPTIONS = ("range_resolution_m", "range_offset_m", "sweep_period_s", "stamp", "azimuth_offset_rad",
+               "encoder_size")
 
 
 def run(args) -> int:
@@ -70,8 +108,10 @@ def run(args) -> int:
     from ..pipeline import DEFAULT_PREFETCH
     from ..run import format_metrics, run_sequence
 
-    model = resolve_model(args.model or default_model_name())
+    model_spec = args.model or default_model_name()
+    model = resolve_model(model_spec)
     out = Path(args.output) if args.output else Path(f"run-{Path(args.sequence).resolve().name}")
+    bag_geometry = {k: getattr(args, k) for k in BAG_OPTIONS if getattr(args, k, None) is not None}
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", GroundTruthWarning)
         try:
@@ -79,7 +119,8 @@ def run(args) -> int:
                                   plot=not args.no_plot, motion_prior=not args.no_motion_prior,
                                   on_error=args.on_error, prefetch=0 if args.no_pipeline else DEFAULT_PREFETCH,
                                   deskew=args.deskew, gt_time_offset=_offset(args.gt_time_offset, "--gt-time-offset"),
-                                  gt_heading_offset_deg=_offset(args.gt_heading_offset_deg, "--gt-heading-offset-deg"))
+                                  gt_heading_offset_deg=_offset(args.gt_heading_offset_deg, "--gt-heading-offset-deg"),
+                                  topic=args.topic, bag_geometry=bag_geometry, bag_out=args.bag_out)
         except RadarOdomError:
             _print_warnings(caught, sys.stderr)
             raise
@@ -91,6 +132,7 @@ def run(args) -> int:
     gated = sum(e.gated for e in result.estimates)
     dominated = sum(e.prior_dominated for e in result.estimates)
     prior = "motion prior off" if args.no_motion_prior else f"{gated} gated, {dominated} prior-dominated"
+    print(f"model: {model_spec}" + ("" if str(model) == str(model_spec) else f" ({model})"))
     print(f"{len(result.timestamps_us)} sweeps, {len(result.estimates)} estimates "
           f"({result.num_degenerate} degenerate; {prior}), {1e3 * result.seconds_per_step:.1f} ms per sweep")
     if result.reference_note:
