@@ -110,3 +110,17 @@ def test_no_import_cycles_in_the_project():
     assert "radar_odom_export.onnx_export" in graph and "radar_odom.odometer" in graph
     assert "radar_odom_export.fast_search" in graph["radar_odom_export.onnx_export"]
     assert _cycles(graph) == []
+
+
+def test_every_command_help_prints_no_doubled_percent():
+    """Descriptions use RawDescriptionHelpFormatter, which leaves '%%' as typed (issue 24 found
+    `train --help` printing "20%%"); every subcommand's help must read as written."""
+    from radar_odom.cli import build_parser
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
+    assert "train" in sub.choices
+    for name, p in sub.choices.items():
+        text = p.format_help()
+        assert "%%" not in text, (name, text[text.index("%%") - 60: text.index("%%") + 10])
+    assert "20 %" in sub.choices["train"].format_help()

@@ -7,7 +7,7 @@ HELP = "train the masking network with pose supervision (or the raw / cfar / sup
 
 DESCRIPTION = HELP + """.
 
-DATA are recording folders with ground truth (Oxford, Boreas or MulRan layout); the last 20%%
+DATA are recording folders with ground truth (Oxford, Boreas or MulRan layout); the last 20 %
 of them (by order given, at least one) are held out for validation unless --val-data names
 them. Without DATA, simulated drives are used: every scenario in --scenarios for every seed
 in --sim-seeds (training) and --val-seeds (validation). Simulated drives are converted once
