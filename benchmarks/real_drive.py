@@ -11,8 +11,9 @@ Edinburgh, three pairs 0.5 s apart), time files as published. Every matcher runs
 once with de-skew off and once on. Rows:
 
 * the shipped models (`radar_odom.pretrained_names`);
-* raw-scan correlation and CFAR on the cart-0.4 grid: the same graph with the mask fixed to 1
-  (raw) or to a cell-averaging CFAR detection (training-free), exported here from
+* raw-scan correlation and CFAR: the default model's graph (its profile as its ONNX metadata
+  records it: grid, input normalisation, parabolic pose read-out) with the mask fixed to 1 (raw)
+  or to a cell-averaging CFAR detection (training-free), exported here from
   `radar_odom_export.model.MaskedCorrelator` (needs the export extra; skipped without torch);
 * KISS-ICP (``pip install ".[peer]"``) on the 40 strongest returns per azimuth, with its own
   de-skew as the "de-skew" row (`benchmarks/peer_kiss_icp.py`).
@@ -21,7 +22,10 @@ Reference: the GNSS/INS track aligned once, for every row alike: the INS heading
 on straight stretches, the clock offset estimated from the default model's run (de-skew off),
 both printed (`radar_odom.run.gnss_reference`). Score: KITTI translational (%) and rotational
 (°/m) error, segments of 50–400 m (`radar_odom.metrics.kitti_lengths_for`), a segment every 4
-sweeps, pooled over segments. The plot draws every trajectory (de-skew off) over the reference.
+sweeps, pooled over segments; and per pair (`radar_odom.metrics.step_biases`): the step scale
+(Σ estimated / Σ reference step length over pairs moving ≥ 1 m), the direction of the estimated
+translation against the reference's on straight pairs (median, + = to the sensor's +y, right),
+and the RMS yaw error per pair while moving and while standing still. The plot draws every trajectory (de-skew off) over the reference.
 ``--stretch A:B`` scores sweeps A..B−1 only (a fresh stream from A; the reference aligned on the
 whole drive as above): ``200:`` is the last 80 sweeps (105 m), the stretch that
 ``radar-odom train --real`` holds out by default (``--real-holdout 80``).
@@ -41,18 +45,21 @@ ROOT = Path(__file__).resolve().parents[1]
 DRIVE = ROOT.parent / "shared" / "data" / "real" / "radiate-2019-02-12-edinburgh"
 
 
-def export_classical(masking: str, out_dir: Path) -> Path | None:
-    """The cart-0.4 graph with a fixed ``masking`` ("raw" or "cfar"), fast search; None without torch."""
+def export_classical(masking: str, out_dir: Path, model_path) -> Path | None:
+    """The graph of the ONNX model ``model_path`` (its profile as its metadata records it: grid,
+    input normalisation, pose read-out) with a fixed ``masking`` ("raw" or "cfar") instead of
+    the learned mask, fast search; None without torch."""
     try:
         import torch  # noqa: F401
     except ImportError:
         return None
-    from radar_odom.profiles import get_profile
+    from radar_odom.onnx_model import OnnxModel
     from radar_odom_export.model import MaskedCorrelator
     from radar_odom_export.onnx_export import export_fast
 
-    path = out_dir / f"{masking}-0.4.onnx"
-    model = MaskedCorrelator(get_profile("cart-0.4"), masking=masking).eval()
+    profile = OnnxModel(model_path, threads=1).info.profile
+    path = out_dir / f"{masking}-{profile.resolution_m:g}.onnx"
+    model = MaskedCorrelator(profile, masking=masking).eval()
     export_fast(model, path, verify=False, training_data=f"none ({masking} masking)")
     return path
 
@@ -81,12 +88,12 @@ def run_kiss(scans, deskew: bool) -> np.ndarray:
 
 
 def score(gt, est) -> dict:
-    from radar_odom.metrics import kitti_lengths_for, kitti_metrics, path_lengths_m
+    from radar_odom.metrics import kitti_lengths_for, kitti_metrics, path_lengths_m, step_biases
 
     lengths = kitti_lengths_for(path_lengths_m(gt)[-1])
     m = kitti_metrics(gt, est, step=4, lengths=lengths, pooling="segments")
     return {"t": m["translation_percent"], "r": m["rotation_deg_per_m"], "segments": m["num_segments"],
-            "lengths": lengths}
+            "lengths": lengths, "steps": step_biases(gt, est)}
 
 
 def plot(path: Path, gt, rows: dict, title: str) -> None:
@@ -145,8 +152,9 @@ def main(argv=None) -> int:
     models = {n: (pretrained(n) if n in pretrained_names() else Path(n)) for n in names}
     tmp = Path(tempfile.mkdtemp(prefix="real-drive-"))
     if not args.no_classical:
-        for masking, label in (("raw", "raw-scan correlation, 0.4 m"), ("cfar", "CFAR (no training), 0.4 m")):
-            path = export_classical(masking, tmp)
+        for masking, label in (("raw", f"raw-scan correlation ({default} graph)"),
+                               ("cfar", f"CFAR, no training ({default} graph)")):
+            path = export_classical(masking, tmp, pretrained(default))
             if path is None:
                 print(f"{label}: skipped (needs the export extra: torch)", file=sys.stderr)
             else:
@@ -169,7 +177,9 @@ def main(argv=None) -> int:
             poses, s_per, gaps = run_model(model, scans, deskew)
             sc = score(gt, poses)
             results.append((label, deskew, sc, f"{1e3 * s_per:.0f}", gaps))
+            st = sc["steps"]
             print(f"{label:40s} de-skew {'on ' if deskew else 'off'}: {sc['t']:6.2f} %  {sc['r']:.4f} °/m  "
+                  f"scale {st['scale']:.3f}  direction {st['direction_deg']:+.2f}°  yaw rms {st['yaw_rms_deg']:.2f}° "
                   f"({1e3 * s_per:.0f} ms/sweep, {gaps} gaps crossed)", flush=True)
             if not deskew:
                 drawn[label] = poses
@@ -194,11 +204,14 @@ def main(argv=None) -> int:
         f"KITTI-style on {len(scans)} sweeps ({lengths[0]}–{lengths[-1]} m segments every 4 sweeps, "
         f"{results[0][2]['segments']} segments):",
         "",
-        "| matcher | de-skew | translation % | rotation °/m | ms per sweep | gaps crossed |",
-        "|---|---|---:|---:|---:|---:|",
+        "| matcher | de-skew | translation % | rotation °/m | step scale | direction ° | yaw RMS ° (moving / still) "
+        "| ms per sweep | gaps crossed |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for label, deskew, sc, ms, gaps in results:
-        lines.append(f"| {label} | {'on' if deskew else 'off'} | {sc['t']:.2f} | {sc['r']:.4f} | {ms} | {gaps} |")
+        st = sc["steps"]
+        lines.append(f"| {label} | {'on' if deskew else 'off'} | {sc['t']:.2f} | {sc['r']:.4f} | {st['scale']:.3f} | "
+                     f"{st['direction_deg']:+.2f} | {st['yaw_rms_deg']:.2f} / {st['yaw_rms_still_deg']:.2f} | {ms} | {gaps} |")
     table = "\n".join(lines)
     print(table)
     if args.markdown:

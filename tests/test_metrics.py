@@ -173,6 +173,31 @@ def test_relative_pose_errors_by_hand():
         M.relative_pose_errors(gt, est[:1])
 
 
+def test_step_biases_by_hand():
+    """Scale, direction and yaw RMS of a hand-made set of pairs: two straight moving pairs read
+    2 % long and 1° to the left, one turning pair, one standing pair."""
+    d = math.radians(1.0)
+    gt = np.array([[2.0, 0.0, 0.0], [3.0, 0.0, 0.001], [2.0, 0.1, math.radians(5.0)], [0.1, 0.0, 0.0]])
+    est = np.array([
+        [2.04 * math.cos(d), 2.04 * math.sin(d), math.radians(0.3)],
+        [3.06 * math.cos(d), 3.06 * math.sin(d), 0.001 - math.radians(0.4)],
+        [2.0, 0.1, math.radians(5.0)],
+        [0.1, 0.0, math.radians(-0.6) + 2 * math.pi],  # wrapped: 0.6° of error
+    ])
+    b = M.step_biases(gt, est)
+    moving_len = 2.0 + 3.0 + math.hypot(2.0, 0.1)
+    assert b["scale"] == pytest.approx((2.04 + 3.06 + math.hypot(2.0, 0.1)) / moving_len)
+    assert b["direction_deg"] == pytest.approx(1.0, abs=1e-9)
+    assert b["num_moving"] == 3 and b["num_straight"] == 2
+    assert b["yaw_rms_deg"] == pytest.approx(math.sqrt((0.3**2 + 0.4**2 + 0.0) / 3))
+    assert b["yaw_rms_still_deg"] == pytest.approx(0.6)
+    # no pair qualifies: NaN, not an error; mismatched lengths: an error naming both
+    none = M.step_biases(gt[3:], est[3:])
+    assert math.isnan(none["scale"]) and math.isnan(none["direction_deg"]) and math.isnan(none["yaw_rms_deg"])
+    with pytest.raises(ValueError, match="4 steps but est_rel has 3"):
+        M.step_biases(gt, est[:3])
+
+
 def test_mahalanobis_by_hand_and_chi_square_mean():
     cov = np.diag([4.0, 1.0, 0.01])[None]
     err = np.array([[2.0, 1.0, 0.1 + 2 * np.pi]])  # each axis one sigma; yaw wraps to 0.1

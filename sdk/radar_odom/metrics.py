@@ -200,6 +200,49 @@ def relative_pose_errors(gt_rel, est_rel) -> dict:
     }
 
 
+def step_biases(gt_rel, est_rel, min_step_m: float = 1.0, straight_deg: float = 0.5) -> dict:
+    """Systematic errors of the per-pair estimates, which KITTI segments mix with the random walk
+    of the heading: a matcher that reads every step 2 % short, or points its translation 1.5° to
+    one side, scores worse however small its noise.
+
+    Args:
+        gt_rel, est_rel: as `relative_pose_errors` (N relative poses, or N + 1 absolute ones).
+        min_step_m: pairs whose reference translation is shorter are left out (standing still:
+            scale and direction are undefined there).
+        straight_deg: a pair is "straight" when its reference yaw is within this many degrees.
+
+    Returns:
+        ``"scale"``: Σ‖t_est‖ / Σ‖t_gt‖ over the moving pairs (1 = no scale error);
+        ``"direction_deg"``: median over straight moving pairs of the estimate's translation
+        direction atan2(y, x) minus the reference's (positive = towards +y of the sensor frame);
+        ``"yaw_rms_deg"``: RMS of the wrapped yaw error over the moving pairs;
+        ``"yaw_rms_still_deg"``: the same over the other pairs (NaN if none);
+        ``"num_moving"``, ``"num_straight"`` (ints). NaN where no pair qualifies.
+    """
+    gt = _as_xyyaw(gt_rel, "gt_rel")
+    est = _as_xyyaw(est_rel, "est_rel")
+    if gt.shape != est.shape:
+        raise ValueError(f"gt_rel has {len(gt)} steps but est_rel has {len(est)}; give one estimate per pair")
+    gt_len = np.hypot(gt[:, 0], gt[:, 1])
+    moving = gt_len >= min_step_m
+    straight = moving & (np.abs(np.degrees(gt[:, 2])) <= straight_deg)
+    yaw_err = np.degrees(wrap_angle(est[:, 2] - gt[:, 2]))
+
+    def rms(a):
+        return float(np.sqrt(np.mean(a**2))) if len(a) else math.nan
+
+    direction = np.degrees(wrap_angle(np.arctan2(est[:, 1], est[:, 0]) - np.arctan2(gt[:, 1], gt[:, 0])))
+    return {
+        "scale": float(np.hypot(est[moving, 0], est[moving, 1]).sum() / gt_len[moving].sum())
+        if moving.any() else math.nan,
+        "direction_deg": float(np.median(direction[straight])) if straight.any() else math.nan,
+        "yaw_rms_deg": rms(yaw_err[moving]),
+        "yaw_rms_still_deg": rms(yaw_err[~moving]),
+        "num_moving": int(moving.sum()),
+        "num_straight": int(straight.sum()),
+    }
+
+
 # a soft-argmax at a high β concentrates on one cell and its covariance can be singular; d² is
 # computed with this diagonal added, a thousandth of a grid cell (rotation step for yaw)
 JITTER_CELLS = 1e-3
