@@ -25,7 +25,9 @@ both printed (`radar_odom.run.gnss_reference`). Score: KITTI translational (%) a
 sweeps, pooled over segments; and per pair (`radar_odom.metrics.step_biases`): the step scale
 (Σ estimated / Σ reference step length over pairs moving ≥ 1 m), the direction of the estimated
 translation against the reference's on straight pairs (median, + = to the sensor's +y, right),
-and the RMS yaw error per pair while moving and while standing still. The plot draws every trajectory (de-skew off) over the reference.
+and the RMS yaw error per pair while moving and while standing still; the covariance's fit, mean
+and median d² of each step's reported covariance against the reference (χ²(3): 3 and 2.37) and
+the share above χ²(3)'s 95 % point. The plot draws every trajectory (de-skew off) over the reference.
 ``--stretch A:B`` scores sweeps A..B−1 only (a fresh stream from A; the reference aligned on the
 whole drive as above): ``200:`` is the last 80 sweeps (105 m), the stretch that
 ``radar-odom train --real`` holds out by default (``--real-holdout 80``).
@@ -43,6 +45,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 DRIVE = ROOT.parent / "shared" / "data" / "real" / "radiate-2019-02-12-edinburgh"
+CHI2_3_95 = 7.815  # 95 % point of χ²(3): a calibrated covariance leaves 5 % of d² above it
 
 
 def export_classical(masking: str, out_dir: Path, model_path) -> Path | None:
@@ -64,14 +67,31 @@ def export_classical(masking: str, out_dir: Path, model_path) -> Path | None:
     return path
 
 
-def run_model(model, scans, deskew: bool) -> tuple[np.ndarray, float, int]:
-    """(absolute poses float64[N, 3, 3], seconds per sweep, gaps crossed) of one matcher."""
+def run_model(model, scans, deskew: bool, with_estimates: bool = False):
+    """(absolute poses float64[N, 3, 3], seconds per sweep, gaps crossed) of one matcher, and
+    with ``with_estimates`` its N − 1 estimates (`radar_odom.Estimate`) and its profile too."""
     from radar_odom import RadarOdometer
 
     odo = RadarOdometer(model, deskew=deskew)
     t0 = time.perf_counter()
-    gaps = sum("gap" in e.flags for e in (odo.step(s) for s in scans) if e is not None)
-    return odo.trajectory.poses, (time.perf_counter() - t0) / len(scans), gaps
+    ests = [e for e in (odo.step(s) for s in scans) if e is not None]
+    gaps = sum("gap" in e.flags for e in ests)
+    out = odo.trajectory.poses, (time.perf_counter() - t0) / len(scans), gaps
+    return (*out, ests, odo.profile) if with_estimates else out
+
+
+def covariance_fit(gt, est, estimates, profile) -> dict:
+    """Mean and median d² of the estimates' covariances against the reference's relative poses
+    (non-degenerate steps; χ²(3): mean 3, median 2.37) and the share above χ²(3)'s 95 % point."""
+    from radar_odom.metrics import covariance_jitter, mahalanobis_sq
+    from radar_odom.se2 import relative_from_absolute
+
+    gt_rel, est_rel = relative_from_absolute(gt), relative_from_absolute(est)
+    good = np.all(np.isfinite(gt_rel), axis=1) & np.array([not e.degenerate for e in estimates])
+    covs = np.stack([e.covariance for e in estimates])[good]
+    d2 = mahalanobis_sq(gt_rel[good] - est_rel[good], covs,
+                        covariance_jitter(profile.resolution_m, profile.rotation_step_rad))
+    return {"mean": float(d2.mean()), "median": float(np.median(d2)), "above_95": float((d2 > CHI2_3_95).mean())}
 
 
 def run_kiss(scans, deskew: bool) -> np.ndarray:
@@ -174,12 +194,14 @@ def main(argv=None) -> int:
     results, drawn = [], {}
     for label, model in models.items():
         for deskew in deskews:
-            poses, s_per, gaps = run_model(model, scans, deskew)
+            poses, s_per, gaps, ests, profile = run_model(model, scans, deskew, with_estimates=True)
             sc = score(gt, poses)
+            sc["d2"] = covariance_fit(gt, poses, ests, profile)
             results.append((label, deskew, sc, f"{1e3 * s_per:.0f}", gaps))
             st = sc["steps"]
             print(f"{label:40s} de-skew {'on ' if deskew else 'off'}: {sc['t']:6.2f} %  {sc['r']:.4f} °/m  "
-                  f"scale {st['scale']:.3f}  direction {st['direction_deg']:+.2f}°  yaw rms {st['yaw_rms_deg']:.2f}° "
+                  f"scale {st['scale']:.3f}  direction {st['direction_deg']:+.2f}°  yaw rms {st['yaw_rms_deg']:.2f}°  "
+                  f"d² {sc['d2']['mean']:.3g} / {sc['d2']['median']:.3g} "
                   f"({1e3 * s_per:.0f} ms/sweep, {gaps} gaps crossed)", flush=True)
             if not deskew:
                 drawn[label] = poses
@@ -205,13 +227,16 @@ def main(argv=None) -> int:
         f"{results[0][2]['segments']} segments):",
         "",
         "| matcher | de-skew | translation % | rotation °/m | step scale | direction ° | yaw RMS ° (moving / still) "
-        "| ms per sweep | gaps crossed |",
-        "|---|---|---:|---:|---:|---:|---:|---:|---:|",
+        "| d² mean / median (share > χ² 95 %) | ms per sweep | gaps crossed |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for label, deskew, sc, ms, gaps in results:
         st = sc["steps"]
+        d2 = (f"{sc['d2']['mean']:.3g} / {sc['d2']['median']:.3g} ({100 * sc['d2']['above_95']:.0f} %)"
+              if "d2" in sc else "")
         lines.append(f"| {label} | {'on' if deskew else 'off'} | {sc['t']:.2f} | {sc['r']:.4f} | {st['scale']:.3f} | "
-                     f"{st['direction_deg']:+.2f} | {st['yaw_rms_deg']:.2f} / {st['yaw_rms_still_deg']:.2f} | {ms} | {gaps} |")
+                     f"{st['direction_deg']:+.2f} | {st['yaw_rms_deg']:.2f} / {st['yaw_rms_still_deg']:.2f} | {d2} "
+                     f"| {ms} | {gaps} |")
     table = "\n".join(lines)
     print(table)
     if args.markdown:

@@ -16,6 +16,7 @@ from radar_odom_export.real_pairs import (  # noqa: E402
     MixedPairs,
     SkipPairs,
     real_drive,
+    real_runs,
     window_limits,
 )
 from radar_odom_export.train import TrainConfig, train  # noqa: E402
@@ -117,3 +118,21 @@ def test_the_real_mask_figure_draws_a_held_out_sweep(real_data_dir, tmp_path):
     ckpt = root / "export" / "radar_odom_export" / "checkpoints" / "cart-0.4.pt"
     assert mod.main([str(ckpt), "-o", str(out), "--drive", str(real_data_dir / DRIVE), "--sweep", "240"]) == 0
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_real_runs_cut_at_pairs_without_a_reference_and_are_named_for_the_weights(monkeypatch):
+    """`real_runs`: every run holds only pairs with a reference, sweeps and poses line up, the
+    names carry the ``real:`` prefix that `calibrate.pair_weights` looks for."""
+    from radar_odom_export import calibrate as cal
+    from radar_odom_export import real_pairs as RP
+
+    rel = np.tile((0.5, 0.0, 0.01), (7, 1)).astype(np.float32)
+    rel[2] = np.nan
+    toy = _drive(rel)
+    monkeypatch.setattr(RP, "real_drive", lambda path, profile, holdout, use_cache=True: toy)
+    runs = real_runs("somewhere/drive", TINY, holdout=0)
+    assert [r.name for r in runs] == ["real:drive-0", "real:drive-3"]
+    assert [r.num_pairs for r in runs] == [2, 4] and [len(r.images) for r in runs] == [3, 5]
+    assert all(np.all(np.isfinite(r.poses_rel)) for r in runs)
+    np.testing.assert_array_equal(runs[1].images[0], toy.images[3])
+    assert cal.pair_weights([r.name for r in runs] + ["urban-7"], 0.5) == pytest.approx([0.25, 0.25, 0.5])

@@ -531,6 +531,45 @@ def test_fit_covariance_shape_recovers_a_known_scale_and_floors():
         cal.fit_covariance_shape(moments[:, :2, :2], errors, prof)
 
 
+def test_weighted_shape_fit_follows_the_weighted_group_and_pair_weights_split_the_shares():
+    """Two groups drawn with different floors (a sharp-peaked 'simulated' one, a noisier 'real'
+    one): weight 0 on a group removes it from the fit (same result as fitting the other alone),
+    equal weights land between, and the weighted mean d² is 3 at the optimum."""
+    rng = np.random.default_rng(5)
+    prof = TINY
+    n = 3000
+    size = np.exp(rng.uniform(np.log(1e-4), np.log(1.0), n))
+    moments = np.zeros((n, 3, 3))
+    moments[:, 0, 0], moments[:, 1, 1], moments[:, 2, 2] = size, 0.05 * size, 1e-3 * size
+
+    def draw(truth):
+        cov = cal.shape_covariances(moments, truth)
+        return np.einsum("pij,pj->pi", np.linalg.cholesky(cov), rng.standard_normal((n, 3)))
+
+    sim = draw(prof.with_(cov_scale=2.0, cov_floor_cells=0.2, cov_floor_yaw_cells=0.4))
+    real = draw(prof.with_(cov_scale=2.0, cov_floor_cells=0.8, cov_floor_yaw_cells=3.0))
+    m2, e2 = np.concatenate([moments, moments]), np.concatenate([sim, real])
+    names = [f"urban-{k}" for k in range(n)] + ["real:drive-0"] * n
+    alone = cal.fit_covariance_shape(moments, real, prof)
+    only_real = cal.fit_covariance_shape(m2, e2, prof, weights=cal.pair_weights(names, 1.0))
+    assert (only_real.cov_floor_cells, only_real.cov_floor_yaw_cells) == pytest.approx(
+        (alone.cov_floor_cells, alone.cov_floor_yaw_cells), rel=1e-3)
+    assert only_real.cov_floor_yaw_cells == pytest.approx(3.0, rel=0.1)
+    only_sim = cal.fit_covariance_shape(m2, e2, prof, weights=cal.pair_weights(names, 0.0))
+    assert only_sim.cov_floor_yaw_cells == pytest.approx(0.4, rel=0.15)
+    half = cal.fit_covariance_shape(m2, e2, prof, weights=cal.pair_weights(names, 0.5))
+    assert only_sim.cov_floor_yaw_cells < half.cov_floor_yaw_cells < only_real.cov_floor_yaw_cells
+    assert half.mean_d2 == pytest.approx(3.0, rel=0.02)
+    # the shares: real pairs carry real_share, equal within each group; one group alone: equal weights
+    w = cal.pair_weights(["urban-1", "open-2", "real:x-0"], 0.25)
+    assert w == pytest.approx([0.375, 0.375, 0.25])
+    assert cal.pair_weights(["urban-1", "open-2"], 0.25) == pytest.approx([0.5, 0.5])
+    with pytest.raises(ValueError, match="real_share"):
+        cal.pair_weights(names, 1.5)
+    with pytest.raises(ValueError, match="weights"):
+        cal.fit_covariance_shape(moments, real, prof, weights=-np.ones(n))
+
+
 def test_calibration_provenance_carries_no_build_machine_paths():
     cmd = cal.provenance_command(["calibrate", "/home/me/runs/cart-0.4.pt", "--sim-seeds", "2500-2503",
                                   "-o", "/tmp/x y/cal.pt", "rel/dir/model.pt"])

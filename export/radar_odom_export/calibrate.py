@@ -47,6 +47,7 @@ from .softargmax import candidate_weights, read_pose, weighted_covariance
 TARGET_D2 = 3.0
 BAND = (2.7, 3.3)
 JITTER_CELLS = metrics.JITTER_CELLS
+REAL_PREFIX = "real:"  # drive names of real recordings (`real_pairs.real_runs`)
 
 
 class CalibrationError(RadarOdomError, RuntimeError):
@@ -79,13 +80,15 @@ class CovarianceShape:
     mean_d2: float  # on the pairs fitted (3 at the optimum)
     pairs: int
     search: str = "exhaustive"
+    real_share: float | None = None  # the real pairs' share of the likelihood (None: no real pairs)
 
     def profile_fields(self) -> dict:
         return {"cov_scale": self.cov_scale, "cov_floor_cells": self.cov_floor_cells,
                 "cov_floor_yaw_cells": self.cov_floor_yaw_cells}
 
     def to_dict(self) -> dict:
-        return {**self.profile_fields(), "mean_d2": self.mean_d2, "pairs": self.pairs, "search": self.search}
+        return {**self.profile_fields(), "mean_d2": self.mean_d2, "pairs": self.pairs, "search": self.search,
+                "real_share": self.real_share}
 
 
 # ----------------------------------------------------------------------------- volumes
@@ -151,23 +154,30 @@ def shape_covariances(moments: np.ndarray, profile: GridProfile) -> np.ndarray:
 
 
 def fit_covariance_shape(moments: np.ndarray, errors: np.ndarray, profile: GridProfile,
-                         iterations: int = 4) -> CovarianceShape:
+                         iterations: int = 4, weights: np.ndarray | None = None) -> CovarianceShape:
     """Maximum-likelihood ``cov_scale``, ``cov_floor_cells`` and ``cov_floor_yaw_cells``.
 
     Args:
         moments: float[P, 3, 3] beta_cov second moments (m², m·rad, rad²), no scale or floor.
         errors: float[P, 3] ``gt − pose`` (x m, y m, yaw rad; yaw wrapped).
         profile: for the cell sizes (``resolution_m``, ``rotation_step_rad``).
+        weights: float[P] ≥ 0, each pair's share of the likelihood (None: equal). Lets a few
+            hundred real pairs count as much as thousands of simulated ones (`pair_weights`).
     Returns:
-        `CovarianceShape` minimising the Gaussian negative log-likelihood
-        ``Σᵢ dᵢ² + log det Σᵢ`` over the pairs (L-BFGS on the logs, so all three stay positive),
-        with the mean d² it gives there.
+        `CovarianceShape` minimising the (weighted) Gaussian negative log-likelihood
+        ``Σᵢ wᵢ (dᵢ² + log det Σᵢ)`` over the pairs (L-BFGS on the logs, so all three stay
+        positive), with the (weighted) mean d² it gives there: 3 at the optimum.
     """
     m = torch.as_tensor(np.asarray(moments, np.float64))
     e = torch.as_tensor(np.asarray(errors, np.float64))
     if m.ndim != 3 or m.shape[1:] != (3, 3) or e.shape != (m.shape[0], 3) or len(e) < 3:
         raise ValueError(f"need moments [P, 3, 3] and errors [P, 3] with P >= 3, "
                          f"got {tuple(m.shape)}, {tuple(e.shape)}")
+    w_np = np.ones(len(e)) if weights is None else np.asarray(weights, np.float64)
+    if w_np.shape != (len(e),) or not np.all(np.isfinite(w_np)) or np.any(w_np < 0) or w_np.sum() <= 0:
+        raise ValueError(f"weights must be {len(e)} finite values >= 0 with a positive sum")
+    w_np = w_np / w_np.sum()
+    w = torch.as_tensor(w_np)
     cell2 = torch.tensor([profile.resolution_m, profile.resolution_m, profile.rotation_step_rad],
                          dtype=torch.float64) ** 2 / 12.0
     # start from the paper's form (scale 1, one cell's floor)
@@ -181,7 +191,7 @@ def fit_covariance_shape(moments: np.ndarray, errors: np.ndarray, profile: GridP
     def closure():
         opt.zero_grad()
         c = covs()
-        loss = (torch.einsum("pi,pij,pj->p", e, torch.linalg.inv(c), e) + torch.logdet(c)).mean()
+        loss = ((torch.einsum("pi,pij,pj->p", e, torch.linalg.inv(c), e) + torch.logdet(c)) * w).sum()
         loss.backward()
         return loss
 
@@ -191,9 +201,21 @@ def fit_covariance_shape(moments: np.ndarray, errors: np.ndarray, profile: GridP
     shape = CovarianceShape(cov_scale=s, cov_floor_cells=math.sqrt(ft), cov_floor_yaw_cells=math.sqrt(fr),
                             mean_d2=math.nan, pairs=int(len(e)))
     fitted = profile.with_(**shape.profile_fields())
-    shape.mean_d2 = float(mahalanobis_sq(e.numpy(), shape_covariances(m.numpy(), fitted),
-                                         covariance_jitter(fitted)).mean())
+    shape.mean_d2 = float(np.sum(w_np * mahalanobis_sq(e.numpy(), shape_covariances(m.numpy(), fitted),
+                                                       covariance_jitter(fitted))))
     return shape
+
+
+def pair_weights(names: Sequence[str], real_share: float) -> np.ndarray:
+    """float[P]: weights giving the pairs of real drives (names starting ``real:``) together
+    ``real_share`` of the likelihood and the simulated ones the rest, equal within each group;
+    all equal when either group is empty."""
+    real = np.array([str(n).startswith(REAL_PREFIX) for n in names])
+    if not 0.0 <= real_share <= 1.0:
+        raise ValueError(f"real_share must be in [0, 1], got {real_share!r}")
+    if real.all() or not real.any():
+        return np.full(len(real), 1.0 / max(len(real), 1))
+    return np.where(real, real_share / real.sum(), (1.0 - real_share) / (~real).sum())
 
 
 @torch.no_grad()
@@ -359,6 +381,7 @@ def calibrate_checkpoint(
     pose_estimator: str | None = None,
     covariance: str = "fitted",
     search: str = "exhaustive",
+    real_share: float = 1.0,
 ) -> CalibrationResult:
     """Calibrate a checkpoint's covariance on held-out ``drives``; write it in place or to ``output``.
 
@@ -366,7 +389,9 @@ def calibrate_checkpoint(
     covariance is calibrated against the errors of the pose the model will report).
     ``covariance``: "temperature" tunes ``beta_cov`` alone (paper Sec. 6.2, the quantisation floor
     kept); "fitted" then fits the per-axis shape (`fit_covariance_shape`) on the estimates of
-    ``search`` ("exhaustive" | "fast": the search the model will be exported with)."""
+    ``search`` ("exhaustive" | "fast": the search the model will be exported with). Where
+    ``drives`` mix real (named ``real:…``) and simulated drives, the real pairs carry
+    ``real_share`` of the shape's likelihood (`pair_weights`)."""
     from dataclasses import asdict
 
     from .checkpoint import model_from_dict, read_checkpoint_dict, write_checkpoint_dict
@@ -390,7 +415,8 @@ def calibrate_checkpoint(
         model = model_from_dict({**ckpt, "profile": asdict(profile)}, source=str(path)).eval()
         poses, moments, gts, pair_names = search_estimates(model, drives, search, batch)
         errors = pose_errors(gts, poses)
-        shape = fit_covariance_shape(moments, errors, profile)
+        shape = fit_covariance_shape(moments, errors, profile, weights=pair_weights(pair_names, real_share))
+        shape.real_share = real_share if any(str(n).startswith(REAL_PREFIX) for n in pair_names) else None
         shape.search = search
         fitted = profile.with_(**shape.profile_fields())
         result.shape, result.mean_d2, result.pairs = shape, shape.mean_d2, shape.pairs
@@ -415,11 +441,16 @@ def run_from_args(args) -> CalibrationResult:
 
     from .checkpoint import read_checkpoint_dict
     from .data import build_drives, check_seed_policy, parse_seeds, sequence_drives, sim_specs
+    from .real_pairs import DEFAULT_HOLDOUT, real_runs
 
     if args.threads:
         torch.set_num_threads(args.threads)
     profile = GridProfile.from_dict(read_checkpoint_dict(args.checkpoint)["profile"])
     info = {"command": provenance_command(sys.argv[1:])}
+    real = [d for p in (getattr(args, "real", None) or [])
+            for d in real_runs(p, profile, holdout=getattr(args, "real_holdout", DEFAULT_HOLDOUT))]
+    if real:
+        info.update(real=[str(p) for p in args.real], real_holdout=args.real_holdout, real_share=args.real_share)
     if args.data:
         drives = [d for p in args.data for d in sequence_drives(p, profile)]
         info["data"] = [str(p) for p in args.data]
@@ -435,6 +466,7 @@ def run_from_args(args) -> CalibrationResult:
             desc="calibration drives",
         )
         info.update(sim_seeds=seeds, scenarios=scenarios, frames=args.frames)
+    drives = drives + real
     result = calibrate_checkpoint(
         args.checkpoint,
         drives,
@@ -445,6 +477,7 @@ def run_from_args(args) -> CalibrationResult:
         pose_estimator=getattr(args, "pose_estimator", None),
         covariance=getattr(args, "covariance", "fitted"),
         search=getattr(args, "search", "exhaustive"),
+        real_share=getattr(args, "real_share", 1.0),
     )
     print(format_table(result.table, chosen=result.beta_cov))
     out = args.output or args.checkpoint

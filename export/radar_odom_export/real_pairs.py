@@ -112,6 +112,24 @@ def real_drive(path, profile: GridProfile, holdout: int = DEFAULT_HOLDOUT, use_c
     return Drive(f"{Path(path).name}[:{keep}]", images[:keep], poses[: keep - 1])
 
 
+def real_runs(path, profile: GridProfile, holdout: int = DEFAULT_HOLDOUT, use_cache: bool = True) -> list[Drive]:
+    """`real_drive` cut into runs of consecutive sweeps whose every pair has a reference (a pair
+    without one, e.g. across a hole in the GNSS/INS track, ends a run), each named
+    ``real:<recording>-<first sweep>``: drives for calibration and evaluation, where every
+    consecutive pair is used as it is (`calibrate.pair_weights` finds them by that prefix)."""
+    d = real_drive(path, profile, holdout, use_cache)
+    ok = np.all(np.isfinite(d.poses_rel), axis=1)
+    runs, start = [], 0
+    for k in range(len(ok) + 1):
+        if k == len(ok) or not ok[k]:
+            if k > start:
+                runs.append(Drive(f"real:{Path(path).name}-{start}", d.images[start : k + 1], d.poses_rel[start:k]))
+            start = k + 1
+    if not runs:
+        raise SequenceError(f"{path}: no consecutive pair with a reference pose outside the held-out stretch")
+    return runs
+
+
 def window_limits(profile: GridProfile) -> tuple[float, float]:
     """(largest |x|, |y| in m, largest |yaw| in rad) of a pose the profile's search can read,
     one cell / one yaw step inside the window's edge."""

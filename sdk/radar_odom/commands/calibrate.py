@@ -16,7 +16,12 @@ covariance is small and a corridor ridge's large; the per-scenario d² table sho
 values are written into the checkpoint's profile (in place, or to -o); `radar-odom export` then
 carries them into the graph. DATA are recording folders with ground truth; without DATA, simulated
 drives of --scenarios x --sim-seeds are used (policy: validation seeds 2000-2999, never the
-training or evaluation seeds). Needs the export extra (torch)."""
+training or evaluation seeds). --real adds real recordings with a reference (Oxford gt,
+Boreas/MulRan poses, a RADIATE GNSS/INS track aligned as `radar-odom run` aligns it), their
+last --real-holdout sweeps left out for an honest test; their pairs then carry --real-share of
+the per-axis fit (by default all of it: real sweeps have error sources the simulator lacks, and a
+few hundred real pairs would otherwise count for little beside thousands of simulated ones).
+Needs the export extra (torch)."""
 
 
 def register(subparsers) -> None:
@@ -38,6 +43,15 @@ def register(subparsers) -> None:
     p.add_argument("--search", choices=("exhaustive", "fast"), default="exhaustive",
                    help="the yaw search the model will be exported with (`radar-odom export --search`): the "
                         "per-axis fit uses its estimates (default: %(default)s)")
+    p.add_argument("--real", action="append", default=None, metavar="SEQ",
+                   help="a real recording with a reference, calibrated on as well (repeatable)")
+    p.add_argument("--real-holdout", type=int, default=80,
+                   help="sweeps at the end of each --real recording left out, as `radar-odom train --real` "
+                        "leaves them out (default: %(default)s)")
+    p.add_argument("--real-share", type=float, default=1.0,
+                   help="share of the per-axis fit's likelihood carried by the --real pairs; the default fits "
+                        "the shape on real pairs alone (the simulated drives then set the temperature only), "
+                        "as the product is judged on real sweeps (default: %(default)s)")
     p.add_argument("--max-pairs", type=int, default=2000,
                    help="temperature stage: use at most this many pairs, evenly spread (their volumes are kept)")
     p.add_argument("--batch", type=int, default=8, help="pairs per forward pass (default: %(default)s)")
