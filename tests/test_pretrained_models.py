@@ -1,5 +1,6 @@
 """The shipped models (package data) keep the export contract and match the profile registry."""
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -45,6 +46,9 @@ def test_shipped_model_is_a_calibrated_learned_stream_model_of_its_profile(name)
     for field in ("cov_scale", "cov_floor_cells", "cov_floor_yaw_cells"):
         assert getattr(info.profile, field) == pytest.approx(shape[field]), field
     assert info.profile.cov_floor_cells < 1.0 < info.profile.cov_scale  # sub-cell peaks, wider ridges
+    # the shape fitted on real pairs (the shared drive's first 200 sweeps, its last 80 held out)
+    assert shape["real_share"] == 1.0 and calibration["real_holdout"] == 80
+    assert [Path(p).name for p in calibration["real"]] == ["radiate-2019-02-12-edinburgh"]
     assert info.search is not None  # the shipped models use the fast yaw search
     # trained for real radars: gain/offset-free input, sub-cell peak read-out
     assert info.profile.input_norm == "floor-scale"

@@ -490,6 +490,8 @@ def run_from_args(args) -> CalibrationResult:
     print(f"\nper scenario, {sh.search} search, every consecutive pair:\n" + result.scenario_table)
     print(f"\nbeta_cov = {result.beta_cov:.4g} (beta_pose = {profile.beta_pose:g}), then by maximum likelihood "
           f"cov_scale = {sh.cov_scale:.4g}, cov_floor_cells = {sh.cov_floor_cells:.4g}, "
-          f"cov_floor_yaw_cells = {sh.cov_floor_yaw_cells:.4g} -> mean d² = {sh.mean_d2:.3f} over {sh.pairs} pairs; "
-          f"written to {out}")
+          f"cov_floor_yaw_cells = {sh.cov_floor_yaw_cells:.4g} -> mean d² = {sh.mean_d2:.3f} over {sh.pairs} pairs"
+          + ("" if sh.real_share is None else
+             f" (weighted: the real pairs carry {100 * sh.real_share:.0f} % of the fit; per group above)")
+          + f"; written to {out}")
     return result
