@@ -82,6 +82,8 @@ class DecoupledSettings:
     radius_min: float = 0.1
     radius_max: float = 0.9
     beta_yaw: float = 200.0
+    refine: int = 1
+    refine_step: float = 0.5
 
     def __post_init__(self):
         if self.angle_oversample < 1 or self.radii < 1:
@@ -90,10 +92,12 @@ class DecoupledSettings:
             raise ValueError(f"{self}: need 0 < radius_min < radius_max <= 0.98 (fractions of W/2)")
         if self.beta_yaw <= 0:
             raise ValueError(f"{self}: beta_yaw must be > 0")
+        if self.refine < 0 or self.refine_step <= 0:
+            raise ValueError(f"{self}: refine must be >= 0 and refine_step > 0")
 
     def label(self) -> str:
         """Short name for tables, e.g. ``a1r32``."""
-        return f"a{self.angle_oversample}r{self.radii}"
+        return f"a{self.angle_oversample}r{self.radii}" + (f"f{self.refine}" if self.refine else "")
 
 
 DEFAULT_DECOUPLED = DecoupledSettings()
@@ -236,6 +240,14 @@ class DecoupledStreamStep(nn.Module):
         self.spectrum = FactoredSpectrum(p.width_px)
         self.inverse = WindowedInverse(p.width_px, p.translation_cells)
         self.rings = RingCorrelation(p, self.settings)
+        f = self.settings.refine
+        self.refine_step_rad = self.settings.refine_step * p.rotation_step_rad
+        self.register_buffer("refine_offsets", (torch.arange(-f, f + 1, dtype=torch.float64) * self.refine_step_rad)
+                             .to(torch.float32), persistent=False)
+        # keeps the x/y block (and the floor's yaw entry) of a band covariance, drops its yaw moment
+        keep = torch.ones(3, 3)
+        keep[2, :] = keep[:, 2] = 0.0
+        self.register_buffer("xy_block", keep, persistent=False)
         offsets = torch.arange(-p.translation_cells, p.translation_cells + 1, dtype=torch.float64)
         self.register_buffer("offsets_m", (offsets * p.resolution_m).to(torch.float32), persistent=False)
         # output pixels of the central (W − 2n)² square, metric (x up the rows, y along columns)
@@ -260,11 +272,25 @@ class DecoupledStreamStep(nn.Module):
         from the previous sweeps' natural spectra [B, 2, W, G] and the current sweeps' features
         [B, W, W] and natural spectra; batch items are independent pairs."""
         yaw, yaw_var, _ = self.rings(prev_state, new_state)
-        rotated = self.rotate(features, yaw)
-        volume = self.inverse(self.spectrum.from_natural(prev_state), self.spectrum(rotated).unsqueeze(1))
-        pose, cov = search_soft_argmax(self.model, self.offsets_m, volume, yaw.unsqueeze(1))
+        # the translation stage at the ring yaw and, with refine = f, at f yaws either side of it
+        yaws = yaw.unsqueeze(1) + self.refine_offsets  # [B, 2f + 1]
+        b, k = yaws.shape
+        w = self.width_px
+        stack = features.unsqueeze(1).expand(b, k, w, w).reshape(b * k, w, w)
+        rotated = self.rotate(stack, yaws.reshape(-1)).reshape(b, k, w, w)
+        volume = self.inverse(self.spectrum.from_natural(prev_state), self.spectrum(rotated))  # [B, k, N, N]
+        pose, cov = search_soft_argmax(self.model, self.offsets_m, volume, yaws)
+        if k > 1:
+            # the yaw refined by a parabola through the slices' peak scores (the ring yaw's error
+            # is mostly under a yaw step, where the translation correlation still tells yaws apart);
+            # their soft-argmax would stay near the centre slice when the volume is flat in yaw
+            peaks = volume.flatten(2).amax(dim=-1)  # [B, 2f + 1]
+            refined, _ = peak_and_variance(peaks, self.refine_offsets, self.refine_step_rad, 1.0)
+            pose = torch.cat([pose[:, :2], (yaw + refined).unsqueeze(1)], dim=1)
+            # x/y from the translation softmax, its yaw moment dropped (the floor's yaw entry kept)
+            cov = cov * self.xy_block + self.model.cov_floor * (1.0 - self.xy_block)
         # the x/y block from the translation softmax, the yaw variance from the ring correlation
-        # (the translation volume has one yaw: its yaw moment and cross terms are 0)
+        # (one yaw: the volume's yaw moment and cross terms are 0)
         e = torch.zeros(3, 3, dtype=cov.dtype, device=cov.device)
         e[2, 2] = self.profile.cov_scale
         return pose, cov + yaw_var[:, None, None] * e
