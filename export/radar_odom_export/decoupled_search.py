@@ -6,10 +6,10 @@ Fourier transform does not depend on translation: rotating an image rotates its 
 spectrum by the same angle, whatever the shift. So
 
 1. **Rotation** (`RingCorrelation`). The previous and current masked sweeps' magnitude spectra
-   (from their natural half spectra: the previous one is the stream state, the current one is
-   the new state, computed anyway) are compressed (``|F|^½``: a fourth root of the power, which
-   keeps the few bright low frequencies from dominating) and resampled to ``A`` angles ×
-   ``R`` rings. Angles cover 180° only (``|F(−k)| = |F(k)|`` for real images) in steps of the
+   (``|F|``, from their natural half spectra: the previous one is the stream state, the current
+   one is the new state, computed anyway) are resampled to ``A`` angles × ``R`` rings
+   (compressing them, ``|F|^½`` or ``log |F|``, measured worse on validation drives: yaw
+   error median 0.081° and 0.175° against 0.076° at the same rings). Angles cover 180° only (``|F(−k)| = |F(k)|`` for real images) in steps of the
    profile's yaw step over ``angle_oversample``; the rings run from ``radius_min`` to
    ``radius_max`` of the Nyquist radius ``W/2`` (the DC region is skipped: its energy is
    isotropic). Resampling is bilinear ``GatherElements`` with constant tables (``A·R`` samples
@@ -78,9 +78,9 @@ class DecoupledSettings:
     """
 
     angle_oversample: int = 1
-    radii: int = 32
+    radii: int = 64
     radius_min: float = 0.1
-    radius_max: float = 0.9
+    radius_max: float = 0.6
     beta_yaw: float = 200.0
     refine: int = 1
     refine_step: float = 0.5
@@ -166,11 +166,11 @@ class RingCorrelation(nn.Module):
 
     def magnitudes(self, spectra: torch.Tensor) -> torch.Tensor:
         """Natural half spectra [M, 2, W, G] → ring profiles [M, R, A], each ring zero-mean:
-        ``|F|^½`` resampled to the polar grid."""
+        ``|F|`` resampled to the polar grid."""
         w = self.width_px
         power = spectra[:, 0] ** 2 + spectra[:, 1] ** 2  # [M, W, G]
-        # fourth root of the power, with a floor that keeps the gradient finite at 0
-        mag = torch.sqrt(torch.sqrt(power + 1e-12))
+        # the magnitude, with a floor that keeps the gradient finite at 0
+        mag = torch.sqrt(power + 1e-12)
         centred = torch.cat([mag[:, w // 2:], mag[:, : w // 2]], dim=1)  # row kr + W/2
         flat = F.pad(centred, (1, 2, 1, 2)).reshape(mag.shape[0], -1)
         rings = gather_lerp(flat, self.index.expand(mag.shape[0], -1), self.fr, self.fc, w // 2 + 1 + 3)

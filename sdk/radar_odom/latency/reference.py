@@ -127,11 +127,13 @@ def _bilinear(image: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarr
 
 class DecoupledReference(FFTReference):
     """The decoupled search (Fast-MbyM; `radar_odom_export.decoupled_search`) in numpy: the yaw
-    from a circular correlation of the two magnitude spectra (``|F|^½``) resampled to 180° × R
+    from a circular correlation of the two magnitude spectra (``|F|``) resampled to 180° × R
     rings, along the angle axis (``numpy.fft.rfft``), read at its parabolic peak; the current
-    image rotated once by it; one FFT translation correlation; x, y by the soft-argmax. The
-    settings are the ``radar_odom.search`` metadata (``angle_oversample``, ``radii``,
-    ``radius_min``, ``radius_max``, ``beta_yaw``).
+    image rotated by it (and by ``refine`` yaws of ``refine_step`` yaw steps either side); one FFT
+    translation correlation per rotation; x, y by the soft-argmax over them, the yaw refined by a
+    parabola through their peaks. The settings are the ``radar_odom.search`` metadata
+    (``angle_oversample``, ``radii``, ``radius_min``, ``radius_max``, ``beta_yaw``, ``refine``,
+    ``refine_step``).
     """
 
     def __init__(self, profile, search_settings: dict | None = None):
@@ -141,23 +143,25 @@ class DecoupledReference(FFTReference):
         self.bin_rad = profile.rotation_step_rad / int(st.get("angle_oversample", 1))
         a = int(round(math.pi / self.bin_rad))
         half = w / 2
-        radii = np.linspace(float(st.get("radius_min", 0.1)) * half, float(st.get("radius_max", 0.9)) * half,
-                            int(st.get("radii", 32)))
+        radii = np.linspace(float(st.get("radius_min", 0.1)) * half, float(st.get("radius_max", 0.6)) * half,
+                            int(st.get("radii", 64)))
         angles = np.arange(a) * self.bin_rad
         s = (profile.num_rotations // 2) * int(st.get("angle_oversample", 1))
         self.shifts = np.arange(-s, s + 1)
         self.ring_rows = radii[:, None] * np.cos(angles)[None, :] + w // 2  # [R, A], row kr + W/2
         self.ring_cols = radii[:, None] * np.sin(angles)[None, :]
         self.beta_yaw = float(st.get("beta_yaw", 200.0))
+        self.refine = int(st.get("refine", 0))
+        self.refine_step_rad = float(st.get("refine_step", 0.5)) * profile.rotation_step_rad
         c_w = (w - 1) / 2
         n = self.n
         idx = np.arange(n, w - n, dtype=np.float64)
         self.x_px, self.y_px = (c_w - idx)[:, None], (idx - c_w)[None, :]
 
     def rings(self, spectrum: np.ndarray) -> np.ndarray:
-        """Half spectrum (complex [W, W//2 + 1]) → zero-mean ring profiles [R, A] of ``|F|^½``."""
+        """Half spectrum (complex [W, W//2 + 1]) → zero-mean ring profiles [R, A] of ``|F|``."""
         w = self.width
-        mag = np.sqrt(np.sqrt(spectrum.real ** 2 + spectrum.imag ** 2 + 1e-12))
+        mag = np.sqrt(spectrum.real ** 2 + spectrum.imag ** 2 + 1e-12)
         centred = np.concatenate([mag[w // 2:], mag[: w // 2]], axis=0)
         rings = _bilinear(centred, self.ring_rows, self.ring_cols)
         return rings - rings.mean(axis=1, keepdims=True)
@@ -169,14 +173,7 @@ class DecoupledReference(FFTReference):
         full = np.fft.irfft((np.conj(np.fft.rfft(p, axis=1)) * np.fft.rfft(c, axis=1)).sum(axis=0), n=a)
         cosine = full[self.shifts % a] / np.sqrt((p ** 2).sum() * (c ** 2).sum() + 1e-30)
         yaws = self.shifts * self.bin_rad
-        k = int(np.argmax(cosine))
-        delta = 0.0
-        if 0 < k < len(cosine) - 1:
-            cm, c0, cp = cosine[k - 1], cosine[k], cosine[k + 1]
-            curve = cm - 2 * c0 + cp
-            if curve < 0:
-                delta = float(np.clip((cm - cp) / (2 * curve), -0.5, 0.5))
-        yaw = yaws[k] + delta * self.bin_rad
+        yaw = _parabolic_peak(cosine, yaws, self.bin_rad)
         z = self.beta_yaw * cosine
         wt = np.exp(z - z.max())
         wt /= wt.sum()
@@ -195,8 +192,9 @@ class DecoupledReference(FFTReference):
     def search(self, prev_spectrum: np.ndarray, cur_image: np.ndarray):
         cur_image = np.ascontiguousarray(cur_image, dtype=np.float32)
         yaw, yaw_var, _ = self.yaw(prev_spectrum, np.fft.rfft2(cur_image))
-        vol = self._volume(prev_spectrum, self.rotate(cur_image, yaw)[None], self.n)[0]
-        cand = self.trans.reshape(-1, 2)
+        offsets = np.arange(-self.refine, self.refine + 1) * self.refine_step_rad
+        vol = self._volume(prev_spectrum, np.stack([self.rotate(cur_image, yaw + o) for o in offsets]), self.n)
+        cand = np.broadcast_to(self.trans, (len(offsets), *self.trans.shape)).reshape(-1, 2)
         flat = vol.reshape(-1).astype(np.float64)
 
         def weights(beta):
@@ -205,6 +203,8 @@ class DecoupledReference(FFTReference):
             return e / e.sum()
 
         w = weights(self.profile.beta_pose)
+        if self.refine:  # the parabola through the slices' peaks, as the graph reads it
+            yaw += _parabolic_peak(vol.reshape(len(offsets), -1).max(axis=1), offsets, self.refine_step_rad)
         pose = np.array([*(w @ cand), yaw])
         wc = weights(self.profile.beta_cov)
         centred = cand - wc @ cand
@@ -212,6 +212,19 @@ class DecoupledReference(FFTReference):
         moment[:2, :2] = (centred * wc[:, None]).T @ centred
         moment[2, 2] = yaw_var
         return pose, self.profile.covariance_from_moment(moment)
+
+
+def _parabolic_peak(scores: np.ndarray, values: np.ndarray, step: float) -> float:
+    """The value at the best score, moved by a parabola through it and its neighbours (clipped
+    to ±½ step; none on the border or where the parabola does not curve down)."""
+    k = int(np.argmax(scores))
+    delta = 0.0
+    if 0 < k < len(scores) - 1:
+        cm, c0, cp = scores[k - 1], scores[k], scores[k + 1]
+        curve = cm - 2 * c0 + cp
+        if curve < 0:
+            delta = float(np.clip((cm - cp) / (2 * curve), -0.5, 0.5))
+    return float(values[k] + delta * step)
 
 
 def make_reference(profile, search_settings: dict | None = None) -> FFTReference:
