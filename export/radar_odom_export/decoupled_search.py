@@ -58,8 +58,9 @@ from torch import nn
 from radar_odom.profiles import GridProfile
 
 from .correlation import bilinear_table, gather_lerp
-from .dft import FactoredSpectrum, WindowedInverse, float32_buffer, forward_column_matrix, half_spectrum_inverse_matrix
-from .fast_search import search_soft_argmax
+from .dft import (FactoredSpectrum, LowResImage, WindowedInverse, float32_buffer, forward_column_matrix,
+                  half_spectrum_inverse_matrix)
+from .fast_search import crop_spectrum, search_soft_argmax
 
 
 # ============================================================================ settings
@@ -82,8 +83,9 @@ class DecoupledSettings:
     radius_min: float = 0.1
     radius_max: float = 0.6
     beta_yaw: float = 200.0
-    refine: int = 1
-    refine_step: float = 0.5
+    refine: int = 4
+    refine_step: float = 0.25
+    refine_factor: int = 4
 
     def __post_init__(self):
         if self.angle_oversample < 1 or self.radii < 1:
@@ -92,15 +94,25 @@ class DecoupledSettings:
             raise ValueError(f"{self}: need 0 < radius_min < radius_max <= 0.98 (fractions of W/2)")
         if self.beta_yaw <= 0:
             raise ValueError(f"{self}: beta_yaw must be > 0")
-        if self.refine < 0 or self.refine_step <= 0:
-            raise ValueError(f"{self}: refine must be >= 0 and refine_step > 0")
+        if self.refine < 0 or self.refine_step <= 0 or self.refine_factor < 1:
+            raise ValueError(f"{self}: refine must be >= 0, refine_step > 0 and refine_factor >= 1")
 
     def label(self) -> str:
         """Short name for tables, e.g. ``a1r32``."""
-        return f"a{self.angle_oversample}r{self.radii}" + (f"f{self.refine}" if self.refine else "")
+        return f"a{self.angle_oversample}r{self.radii}" + (
+            f"f{self.refine}x{self.refine_factor}" if self.refine else "")
 
 
 DEFAULT_DECOUPLED = DecoupledSettings()
+
+
+def default_decoupled(profile: GridProfile) -> DecoupledSettings:
+    """The settings used for ``profile`` when none are given: `DEFAULT_DECOUPLED` with the
+    refinement on 64 px images (``refine_factor = W / 64``, at least 1)."""
+    factor = 1
+    while profile.width_px // (factor * 2) >= 64 and profile.width_px % (factor * 2) == 0:
+        factor *= 2
+    return DecoupledSettings(refine_factor=factor)
 
 
 def ring_geometry(profile: GridProfile, settings: DecoupledSettings):
@@ -225,7 +237,7 @@ class DecoupledStreamStep(nn.Module):
     Args:
         model: a single-mode `MaskedCorrelator` (its masker, polar mapping, βs and covariance
             scale/floor are used).
-        settings: `DecoupledSettings` (default `DEFAULT_DECOUPLED`).
+        settings: `DecoupledSettings` (default `default_decoupled(model.profile)`).
     """
 
     def __init__(self, model, settings: DecoupledSettings | None = None):
@@ -235,26 +247,27 @@ class DecoupledStreamStep(nn.Module):
                              "the previous sweep and both masks are predicted together")
         p = model.profile
         self.model = model
-        self.settings = settings or DEFAULT_DECOUPLED
+        self.settings = st = settings or default_decoupled(p)
         self.width_px, self.n = p.width_px, p.translation_cells
         self.spectrum = FactoredSpectrum(p.width_px)
         self.inverse = WindowedInverse(p.width_px, p.translation_cells)
-        self.rings = RingCorrelation(p, self.settings)
-        f = self.settings.refine
-        self.refine_step_rad = self.settings.refine_step * p.rotation_step_rad
-        self.register_buffer("refine_offsets", (torch.arange(-f, f + 1, dtype=torch.float64) * self.refine_step_rad)
-                             .to(torch.float32), persistent=False)
-        # keeps the x/y block (and the floor's yaw entry) of a band covariance, drops its yaw moment
-        keep = torch.ones(3, 3)
-        keep[2, :] = keep[:, 2] = 0.0
-        self.register_buffer("xy_block", keep, persistent=False)
+        self.rings = RingCorrelation(p, st)
+        self.rotation = CropRotation(p.width_px, p.translation_cells)
         offsets = torch.arange(-p.translation_cells, p.translation_cells + 1, dtype=torch.float64)
         self.register_buffer("offsets_m", (offsets * p.resolution_m).to(torch.float32), persistent=False)
-        # output pixels of the central (W − 2n)² square, metric (x up the rows, y along columns)
-        c_w = (p.width_px - 1) / 2
-        idx = torch.arange(self.n, p.width_px - self.n, dtype=torch.float64)
-        self.register_buffer("x_px", (c_w - idx).to(torch.float32).reshape(-1, 1), persistent=False)
-        self.register_buffer("y_px", (idx - c_w).to(torch.float32).reshape(1, -1), persistent=False)
+        self.refine_step_rad = st.refine_step * p.rotation_step_rad
+        self.register_buffer("refine_offsets", (torch.arange(-st.refine, st.refine + 1, dtype=torch.float64)
+                                                * self.refine_step_rad).to(torch.float32), persistent=False)
+        if st.refine:
+            f = st.refine_factor
+            if p.width_px % f or p.width_px // f < 16:
+                raise ValueError(f"refine_factor {f} does not divide width {p.width_px} into >= 16 px images")
+            self.low_px = p.width_px // f
+            low_n = max(1, math.ceil(p.translation_cells / f))
+            self.low_image = LowResImage(self.low_px) if f > 1 else None
+            self.low_spectrum = FactoredSpectrum(self.low_px) if f > 1 else self.spectrum
+            self.low_inverse = WindowedInverse(self.low_px, low_n) if f > 1 else self.inverse
+            self.low_rotation = CropRotation(self.low_px, low_n) if f > 1 else self.rotation
 
     @property
     def profile(self) -> GridProfile:
@@ -272,41 +285,66 @@ class DecoupledStreamStep(nn.Module):
         from the previous sweeps' natural spectra [B, 2, W, G] and the current sweeps' features
         [B, W, W] and natural spectra; batch items are independent pairs."""
         yaw, yaw_var, _ = self.rings(prev_state, new_state)
-        # the translation stage at the ring yaw and, with refine = f, at f yaws either side of it
-        yaws = yaw.unsqueeze(1) + self.refine_offsets  # [B, 2f + 1]
-        b, k = yaws.shape
-        w = self.width_px
-        stack = features.unsqueeze(1).expand(b, k, w, w).reshape(b * k, w, w)
-        rotated = self.rotate(stack, yaws.reshape(-1)).reshape(b, k, w, w)
-        volume = self.inverse(self.spectrum.from_natural(prev_state), self.spectrum(rotated))  # [B, k, N, N]
-        pose, cov = search_soft_argmax(self.model, self.offsets_m, volume, yaws)
-        if k > 1:
-            # the yaw refined by a parabola through the slices' peak scores (the ring yaw's error
-            # is mostly under a yaw step, where the translation correlation still tells yaws apart);
-            # their soft-argmax would stay near the centre slice when the volume is flat in yaw
-            peaks = volume.flatten(2).amax(dim=-1)  # [B, 2f + 1]
-            refined, _ = peak_and_variance(peaks, self.refine_offsets, self.refine_step_rad, 1.0)
-            pose = torch.cat([pose[:, :2], (yaw + refined).unsqueeze(1)], dim=1)
-            # x/y from the translation softmax, its yaw moment dropped (the floor's yaw entry kept)
-            cov = cov * self.xy_block + self.model.cov_floor * (1.0 - self.xy_block)
+        if self.settings.refine:
+            yaw = yaw + self.refine_yaw(prev_state, features, new_state, yaw)
+        rotated = self.rotation(features, yaw)
+        volume = self.inverse(self.spectrum.from_natural(prev_state), self.spectrum(rotated).unsqueeze(1))
+        pose, cov = search_soft_argmax(self.model, self.offsets_m, volume, yaw.unsqueeze(1))
         # the x/y block from the translation softmax, the yaw variance from the ring correlation
         # (one yaw: the volume's yaw moment and cross terms are 0)
         e = torch.zeros(3, 3, dtype=cov.dtype, device=cov.device)
         e[2, 2] = self.profile.cov_scale
         return pose, cov + yaw_var[:, None, None] * e
 
-    def rotate(self, features: torch.Tensor, yaw: torch.Tensor) -> torch.Tensor:
-        """features [B, W, W] rotated by yaw [B] (radians) → [B, W, W]: ``S(R(yaw)ᵀ p)``, the
-        convention and bilinear sampling (zeros outside) of `correlation.rotate_images`, on the
-        central (W − 2n)² square (the support disc's; outside it the result is 0)."""
-        b, w, n = features.shape[0], self.width_px, self.n
+    def refine_yaw(self, prev_state, features, new_state, yaw):
+        """[B]: the correction to the ring yaw from a parabola through the peak scores of the
+        translation correlations at ``yaw + j·refine_step`` (j = −f..f), computed on images of
+        ``W / refine_factor`` px (both spectra cropped to the low frequencies, as the fast
+        search's coarse stage). The ring yaw's error is mostly under a yaw step, where the
+        translation correlation still tells yaws apart."""
+        yaws = yaw.unsqueeze(1) + self.refine_offsets  # [B, k]
+        b, k = yaws.shape
+        if self.settings.refine_factor > 1:
+            prev = self.low_spectrum.from_natural(crop_spectrum(prev_state, self.width_px, self.low_px))
+            image = self.low_image(crop_spectrum(new_state, self.width_px, self.low_px))  # [B, w, w]
+        else:
+            prev, image = self.spectrum.from_natural(prev_state), features
+        w = self.low_px
+        stack = image.unsqueeze(1).expand(b, k, w, w).reshape(b * k, w, w)
+        rotated = self.low_rotation(stack, yaws.reshape(-1)).reshape(b, k, w, w)
+        peaks = self.low_inverse(prev, self.low_spectrum(rotated)).flatten(2).amax(dim=-1)  # [B, k]
+        refined, _ = peak_and_variance(peaks, self.refine_offsets, self.refine_step_rad, 1.0)
+        return refined
+
+
+class CropRotation(nn.Module):
+    """images [B, W, W] rotated by yaw [B] (radians) → [B, W, W]: ``S(R(yaw)ᵀ p)``, the convention
+    and bilinear sampling (zeros outside) of `correlation.rotate_images`, computed on the central
+    (W − 2n)² square only (the support disc's; outside it the result is 0).
+
+    The sampling table depends on the yaw, so it is computed in the graph (a few elementwise ops
+    on (W − 2n)² values) and read with four ``GatherElements`` (`gather_lerp`).
+    """
+
+    def __init__(self, width_px: int, translation_cells: int):
+        super().__init__()
+        self.width_px, self.n = int(width_px), int(translation_cells)
+        c_w = (width_px - 1) / 2
+        idx = torch.arange(self.n, width_px - self.n, dtype=torch.float64)
+        # output pixels of the central square, metric (x up the rows, y along columns)
+        self.register_buffer("x_px", (c_w - idx).to(torch.float32).reshape(-1, 1), persistent=False)
+        self.register_buffer("y_px", (idx - c_w).to(torch.float32).reshape(1, -1), persistent=False)
+
+    def forward(self, images: torch.Tensor, yaw: torch.Tensor) -> torch.Tensor:
+        b, w, n = images.shape[0], self.width_px, self.n
         c_w = (w - 1) / 2
         cos, sin = torch.cos(yaw).reshape(b, 1, 1), torch.sin(yaw).reshape(b, 1, 1)
         src_x = cos * self.x_px + sin * self.y_px  # R(yaw)ᵀ p, [B, w', w']
         src_y = -sin * self.x_px + cos * self.y_px
         index, fr, fc = bilinear_table(c_w - src_x, c_w + src_y, w, w)
-        flat = F.pad(features, (1, 2, 1, 2)).reshape(b, -1)
-        inner = gather_lerp(flat, index.reshape(b, -1), fr.reshape(b, -1), fc.reshape(b, -1), w + 3)
+        flat = F.pad(images, (1, 2, 1, 2)).reshape(b, -1)
+        inner = gather_lerp(flat, index.reshape(b, -1), fr.reshape(b, -1), fc.reshape(b, -1), w + 3,
+                            source_differences=True)
         return F.pad(inner.reshape(b, w - 2 * n, w - 2 * n), (n, n, n, n))
 
 
