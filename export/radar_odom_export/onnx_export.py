@@ -59,7 +59,7 @@ import tempfile
 import time
 import warnings
 from collections import Counter
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
@@ -264,9 +264,10 @@ class ExportReport:
 
     def summary(self) -> str:
         prof = json.loads(self.metadata["radar_odom.profile"])
+        search = json.loads(self.metadata.get("radar_odom.search", "null"))
         lines = [
             f"wrote {self.path} ({self.bytes / 2**20:.2f} MiB, opset {self.opset}, {self.form} form, "
-            f"exporter {self.exporter}, {self.seconds:.1f} s)",
+            f"{search_name(search)} search, exporter {self.exporter}, {self.seconds:.1f} s)",
             f"profile {prof['name']}: {prof['resolution_m']} m/px, {prof['width_px']} px, "
             f"inputs {json.loads(self.metadata['radar_odom.inputs'])} -> "
             f"{json.loads(self.metadata['radar_odom.outputs'])}",
@@ -610,7 +611,8 @@ def export_sequence(model, path, settings: FastSearchSettings | None = None, *, 
 
 
 def export_checkpoint(checkpoint, path, *, form: str | None = None, opset: int = DEFAULT_OPSET,
-                      verify: bool = True, exporter: str = "auto", search: str = "exhaustive") -> ExportReport:
+                      verify: bool = True, exporter: str = "auto", search: str = "exhaustive",
+                      search_settings: dict | None = None) -> ExportReport:
     """Export a checkpoint written by `radar-odom train` (calibrated β included).
 
     ``form`` defaults to ``"stream"`` (in dual mode the stream state is the previous sweep).
@@ -644,10 +646,18 @@ def export_checkpoint(checkpoint, path, *, form: str | None = None, opset: int =
     if "calibration" in meta:
         training["calibration"] = meta["calibration"]
     common = dict(opset=opset, masking=meta["masking"], training_data=training, exporter=exporter, verify=verify)
+    settings = None
+    if search_settings is not None and search in ("fast", "decoupled"):
+        kind = FastSearchSettings if search == "fast" else DecoupledSettings
+        known = {f.name for f in fields(kind)}
+        unknown = sorted(set(search_settings) - known - {"kind", "band_rotations"})
+        if unknown:
+            raise ExportError(f"{search} search settings {unknown} are not known to this version")
+        settings = kind(**{k: v for k, v in search_settings.items() if k in known})
     if form == "sequence":
-        return export_sequence(model, path, **common)
+        return export_sequence(model, path, settings, **common)
     if search == "fast":
-        return export_fast(model, path, **common)
+        return export_fast(model, path, settings, **common)
     if search == "decoupled":
-        return export_decoupled(model, path, **common)
+        return export_decoupled(model, path, settings, **common)
     return export_model(model, path, form=form or "stream", **common)

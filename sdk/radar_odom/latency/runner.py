@@ -139,6 +139,9 @@ def _search_label(r: dict) -> str:
     s = r.get("search")
     if not s:
         return f"exhaustive ({_num_rotations(r['profile'])} yaws)"
+    if s.get("kind") == "decoupled":
+        refine = (f", refined on 1/{s['refine_factor']} over {2 * s['refine'] + 1} yaws" if s.get("refine") else "")
+        return f"decoupled ({s['radii']} rings{refine})"
     return f"coarse 1/{s['coarse_factor']} every {s['coarse_stride']}, band {s['band_rotations']} yaws" + (
         "" if s.get("rotation", "polar") == "polar" else f", {s['rotation']}"
     )
