@@ -58,9 +58,8 @@ from torch import nn
 from radar_odom.profiles import GridProfile
 
 from .correlation import bilinear_table, gather_lerp
-from .dft import (FactoredSpectrum, LowResImage, WindowedInverse, float32_buffer, forward_column_matrix,
-                  half_spectrum_inverse_matrix)
-from .fast_search import crop_spectrum, search_soft_argmax
+from .dft import FactoredSpectrum, WindowedInverse, float32_buffer, forward_column_matrix, half_spectrum_inverse_matrix
+from .fast_search import search_soft_argmax
 
 
 # ============================================================================ settings
@@ -83,9 +82,6 @@ class DecoupledSettings:
     radius_min: float = 0.1
     radius_max: float = 0.6
     beta_yaw: float = 200.0
-    refine: int = 4
-    refine_step: float = 0.25
-    refine_factor: int = 4
 
     def __post_init__(self):
         if self.angle_oversample < 1 or self.radii < 1:
@@ -94,26 +90,13 @@ class DecoupledSettings:
             raise ValueError(f"{self}: need 0 < radius_min < radius_max <= 0.98 (fractions of W/2)")
         if self.beta_yaw <= 0:
             raise ValueError(f"{self}: beta_yaw must be > 0")
-        if self.refine < 0 or self.refine_step <= 0 or self.refine_factor < 1:
-            raise ValueError(f"{self}: refine must be >= 0, refine_step > 0 and refine_factor >= 1")
 
     def label(self) -> str:
         """Short name for tables, e.g. ``a1r32``."""
-        return f"a{self.angle_oversample}r{self.radii}" + (
-            f"f{self.refine}x{self.refine_factor}" if self.refine else "")
+        return f"a{self.angle_oversample}r{self.radii}"
 
 
 DEFAULT_DECOUPLED = DecoupledSettings()
-REFINE_TURN_RAD = math.radians(8.0)  # the refinement's common extra turn (`DecoupledStreamStep.refine_yaw`)
-
-
-def default_decoupled(profile: GridProfile) -> DecoupledSettings:
-    """The settings used for ``profile`` when none are given: `DEFAULT_DECOUPLED` with the
-    refinement on 64 px images (``refine_factor = W / 64``, at least 1)."""
-    factor = 1
-    while profile.width_px // (factor * 2) >= 64 and profile.width_px % (factor * 2) == 0:
-        factor *= 2
-    return DecoupledSettings(refine_factor=factor)
 
 
 def ring_geometry(profile: GridProfile, settings: DecoupledSettings):
@@ -238,7 +221,7 @@ class DecoupledStreamStep(nn.Module):
     Args:
         model: a single-mode `MaskedCorrelator` (its masker, polar mapping, βs and covariance
             scale/floor are used).
-        settings: `DecoupledSettings` (default `default_decoupled(model.profile)`).
+        settings: `DecoupledSettings` (default `DEFAULT_DECOUPLED`).
     """
 
     def __init__(self, model, settings: DecoupledSettings | None = None):
@@ -248,7 +231,7 @@ class DecoupledStreamStep(nn.Module):
                              "the previous sweep and both masks are predicted together")
         p = model.profile
         self.model = model
-        self.settings = st = settings or default_decoupled(p)
+        self.settings = st = settings or DEFAULT_DECOUPLED
         self.width_px, self.n = p.width_px, p.translation_cells
         self.spectrum = FactoredSpectrum(p.width_px)
         self.inverse = WindowedInverse(p.width_px, p.translation_cells)
@@ -256,19 +239,6 @@ class DecoupledStreamStep(nn.Module):
         self.rotation = CropRotation(p.width_px, p.translation_cells)
         offsets = torch.arange(-p.translation_cells, p.translation_cells + 1, dtype=torch.float64)
         self.register_buffer("offsets_m", (offsets * p.resolution_m).to(torch.float32), persistent=False)
-        self.refine_step_rad = st.refine_step * p.rotation_step_rad
-        self.register_buffer("refine_offsets", (torch.arange(-st.refine, st.refine + 1, dtype=torch.float64)
-                                                * self.refine_step_rad).to(torch.float32), persistent=False)
-        if st.refine:
-            f = st.refine_factor
-            if p.width_px % f or p.width_px // f < 16:
-                raise ValueError(f"refine_factor {f} does not divide width {p.width_px} into >= 16 px images")
-            self.low_px = p.width_px // f
-            low_n = max(1, math.ceil(p.translation_cells / f))
-            self.low_image = LowResImage(self.low_px)
-            self.low_spectrum = FactoredSpectrum(self.low_px) if f > 1 else self.spectrum
-            self.low_inverse = WindowedInverse(self.low_px, low_n) if f > 1 else self.inverse
-            self.low_rotation = CropRotation(self.low_px, low_n) if f > 1 else self.rotation
 
     @property
     def profile(self) -> GridProfile:
@@ -286,8 +256,6 @@ class DecoupledStreamStep(nn.Module):
         from the previous sweeps' natural spectra [B, 2, W, G] and the current sweeps' features
         [B, W, W] and natural spectra; batch items are independent pairs."""
         yaw, yaw_var, _ = self.rings(prev_state, new_state)
-        if self.settings.refine:
-            yaw = yaw + self.refine_yaw(prev_state, features, new_state, yaw)
         rotated = self.rotation(features, yaw)
         volume = self.inverse(self.spectrum.from_natural(prev_state), self.spectrum(rotated).unsqueeze(1))
         pose, cov = search_soft_argmax(self.model, self.offsets_m, volume, yaw.unsqueeze(1))
@@ -297,32 +265,6 @@ class DecoupledStreamStep(nn.Module):
         e[2, 2] = self.profile.cov_scale
         return pose, cov + yaw_var[:, None, None] * e
 
-    def refine_yaw(self, prev_state, features, new_state, yaw):
-        """[B]: the correction to the ring yaw from a parabola through the peak scores of the
-        translation correlations at ``yaw + j·refine_step`` (j = −f..f), computed on images of
-        ``W / refine_factor`` px (both spectra cropped to the low frequencies, as the fast
-        search's coarse stage). The ring yaw's error is mostly under a yaw step, where the
-        translation correlation still tells yaws apart."""
-        yaws = yaw.unsqueeze(1) + self.refine_offsets  # [B, k]
-        b, k = yaws.shape
-        # both sweeps as images of w px: their spectra cropped to the low frequencies (an ideal
-        # low-pass, as the fast search's coarse stage), transformed back
-        prev = self.low_image(crop_spectrum(prev_state, self.width_px, self.low_px))  # [B, w, w]
-        image = self.low_image(crop_spectrum(new_state, self.width_px, self.low_px))
-        # Both images are turned by the same extra angle (`REFINE_TURN_RAD`): the relative yaw is
-        # unchanged, and every slice is then far from yaw 0, where bilinear interpolation blurs
-        # about alike whatever the angle. Near 0 it blurs the less the smaller the angle, and the
-        # energy it removes pulls the refined yaw towards 0 (measured: by a whole half degree on
-        # validation drives turning 0.9° per sweep; dividing by the slices' norms instead pushed
-        # it to the window's edges).
-        w = self.low_px
-        turn = torch.full_like(yaw, REFINE_TURN_RAD)
-        prev = self.low_spectrum(self.low_rotation(prev, turn))
-        stack = image.unsqueeze(1).expand(b, k, w, w).reshape(b * k, w, w)
-        rotated = self.low_rotation(stack, (yaws + REFINE_TURN_RAD).reshape(-1)).reshape(b, k, w, w)
-        peaks = self.low_inverse(prev, self.low_spectrum(rotated)).flatten(2).amax(dim=-1)  # [B, k]
-        refined, _ = peak_and_variance(peaks, self.refine_offsets, self.refine_step_rad, 1.0)
-        return refined
 
 
 class CropRotation(nn.Module):

@@ -129,11 +129,9 @@ class DecoupledReference(FFTReference):
     """The decoupled search (Fast-MbyM; `radar_odom_export.decoupled_search`) in numpy: the yaw
     from a circular correlation of the two magnitude spectra (``|F|``) resampled to 180° × R
     rings, along the angle axis (``numpy.fft.rfft``), read at its parabolic peak; the current
-    image rotated by it (and by ``refine`` yaws of ``refine_step`` yaw steps either side); one FFT
-    translation correlation per rotation; x, y by the soft-argmax over them, the yaw refined by a
-    parabola through their peaks. The settings are the ``radar_odom.search`` metadata
-    (``angle_oversample``, ``radii``, ``radius_min``, ``radius_max``, ``beta_yaw``, ``refine``,
-    ``refine_step``).
+    image rotated once by it; one FFT translation correlation; x, y by the soft-argmax. The
+    settings are the ``radar_odom.search`` metadata (``angle_oversample``, ``radii``,
+    ``radius_min``, ``radius_max``, ``beta_yaw``).
     """
 
     def __init__(self, profile, search_settings: dict | None = None):
@@ -151,8 +149,6 @@ class DecoupledReference(FFTReference):
         self.ring_rows = radii[:, None] * np.cos(angles)[None, :] + w // 2  # [R, A], row kr + W/2
         self.ring_cols = radii[:, None] * np.sin(angles)[None, :]
         self.beta_yaw = float(st.get("beta_yaw", 200.0))
-        self.refine = int(st.get("refine", 0))
-        self.refine_step_rad = float(st.get("refine_step", 0.5)) * profile.rotation_step_rad
         c_w = (w - 1) / 2
         n = self.n
         idx = np.arange(n, w - n, dtype=np.float64)
@@ -192,9 +188,8 @@ class DecoupledReference(FFTReference):
     def search(self, prev_spectrum: np.ndarray, cur_image: np.ndarray):
         cur_image = np.ascontiguousarray(cur_image, dtype=np.float32)
         yaw, yaw_var, _ = self.yaw(prev_spectrum, np.fft.rfft2(cur_image))
-        offsets = np.arange(-self.refine, self.refine + 1) * self.refine_step_rad
-        vol = self._volume(prev_spectrum, np.stack([self.rotate(cur_image, yaw + o) for o in offsets]), self.n)
-        cand = np.broadcast_to(self.trans, (len(offsets), *self.trans.shape)).reshape(-1, 2)
+        vol = self._volume(prev_spectrum, self.rotate(cur_image, yaw)[None], self.n)
+        cand = self.trans.reshape(-1, 2)
         flat = vol.reshape(-1).astype(np.float64)
 
         def weights(beta):
@@ -203,8 +198,6 @@ class DecoupledReference(FFTReference):
             return e / e.sum()
 
         w = weights(self.profile.beta_pose)
-        if self.refine:  # the parabola through the slices' peaks, as the graph reads it
-            yaw += _parabolic_peak(vol.reshape(len(offsets), -1).max(axis=1), offsets, self.refine_step_rad)
         pose = np.array([*(w @ cand), yaw])
         wc = weights(self.profile.beta_cov)
         centred = cand - wc @ cand

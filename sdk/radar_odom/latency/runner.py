@@ -140,8 +140,8 @@ def _search_label(r: dict) -> str:
     if not s:
         return f"exhaustive ({_num_rotations(r['profile'])} yaws)"
     if s.get("kind") == "decoupled":
-        refine = (f", refined on 1/{s['refine_factor']} over {2 * s['refine'] + 1} yaws" if s.get("refine") else "")
-        return f"decoupled ({s['radii']} rings{refine})"
+        angles = round(math.pi * s.get("angle_oversample", 1) / r["profile"]["rotation_step_rad"])
+        return f"decoupled ({s['radii']} rings × {angles} angles)"
     return f"coarse 1/{s['coarse_factor']} every {s['coarse_stride']}, band {s['band_rotations']} yaws" + (
         "" if s.get("rotation", "polar") == "polar" else f", {s['rotation']}"
     )
