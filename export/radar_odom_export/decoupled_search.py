@@ -8,9 +8,10 @@ spectrum by the same angle, whatever the shift. So
 1. **Rotation** (`RingCorrelation`). The previous and current masked sweeps' magnitude spectra
    (``|F|``, from their natural half spectra: the previous one is the stream state, the current
    one is the new state, computed anyway) are resampled to ``A`` angles × ``R`` rings
-   (compressing them, ``|F|^½`` or ``log |F|``, measured worse on validation drives: yaw
-   error median 0.081° and 0.175° against 0.076° at the same rings). Angles cover 180° only (``|F(−k)| = |F(k)|`` for real images) in steps of the
-   profile's yaw step over ``angle_oversample``; the rings run from ``radius_min`` to
+   (compressed, ``|F|^½`` or ``log |F|``, they measured worse on validation drives: median yaw
+   error 0.081° and 0.175° against 0.076° with 32 rings). Angles cover 180° only
+   (``|F(−k)| = |F(k)|`` for real images) in steps of the profile's yaw step over
+   ``angle_oversample``; the rings run from ``radius_min`` to
    ``radius_max`` of the Nyquist radius ``W/2`` (the DC region is skipped: its energy is
    isotropic). Resampling is bilinear ``GatherElements`` with constant tables (``A·R`` samples
    per image). Each ring's mean is removed, and the circular correlation along the angle axis,
@@ -20,7 +21,7 @@ spectrum by the same angle, whatever the shift. So
    neighbours (sub-bin read-out); its variance is the second moment of
    ``softmax(beta_yaw · ĉ)`` over the shifts, ĉ the correlation normalised to a cosine
    similarity in [−1, 1] (so ``beta_yaw`` does not depend on the sweep's power).
-2. **Translation** (`DecoupledStreamStep.rotate`). The current features are rotated once, by that
+2. **Translation** (`CropRotation`). The current features are rotated once, by that
    (continuous) yaw: bilinear ``GatherElements`` whose tables are computed in the graph from the
    yaw (the only data-dependent index), on the central ``W − 2n`` square only (features are zero
    outside the support disc, which that square holds), then zero-padded back. One factored DFT
@@ -32,12 +33,18 @@ spectrum by the same angle, whatever the shift. So
    stage 1, no x/y–yaw cross terms (the stages are independent by construction), then the
    profile's ``cov_scale`` and floor as for every search.
 
-Cost per sweep beyond the masker (0.4 m/px, W = 256, n = 20, defaults A = 360, R = 32):
-the state's DFT and layout changes (as in the fast search), 2·A·R = 23 k bilinear samples of the
-magnitudes, two angular DFTs of R×A by A×(A + 2) (8.3 M multiply-adds), one rotation of
-(W − 2n)² = 47 k samples, one more factored DFT of W² and one windowed inverse; the fast search
-instead builds a polar grid of ~340 k samples, rotates 5 images back (330 k samples), and does
-5 factored DFTs and 6 windowed inverses (README: latency).
+Cost per sweep beyond the masker (0.4 m/px, W = 256, n = 20, defaults A = 360, R = 64), counted
+from the code: the sweep's own factored DFT and the state's layout changes (as in the fast
+search), 2·A·R = 46 k bilinear samples of the magnitudes, two angular DFTs of R×A by A×(A + 2)
+(16.7 M multiply-adds), one rotation of (W − 2n)² = 47 k samples, one more factored DFT
+(12.6 M) and one windowed inverse (7 M): about 49 M multiply-adds and 93 k bilinear samples.
+The fast search (cart-0.4's settings) does about 147 M and 950 k (README: latency).
+
+Not done here, measured and dropped: refining the ring yaw with a few translation correlations
+at nearby yaws. On 64 px images it was pulled towards yaw 0 (bilinear rotation blurs the less
+the closer to 0; by half a degree on validation drives turning 0.9° per sweep), and with both
+images turned by a common 8° to equalise the blur its median error (0.12–0.14°) was worse than
+the ring yaw's alone (0.065–0.09°, three validation seeds).
 
 The state is the previous masked sweep's natural half spectrum [B, 2, W, W//2 + 1], as in
 `FastStreamStep` and `MaskedCorrelator.stream_step`: states are interchangeable. The graph uses

@@ -23,7 +23,8 @@ formula as training's precomputed grids); onnxruntime folds them once at session
 
 Every search mode writes through one function, `write_graph` (`export_model`: the exhaustive
 search, stream or pair form; `export_fast`: the coarse-to-fine search of `fast_search`, stream
-form; `export_sequence`: the same search on T consecutive sweeps at once, the offline batch
+form; `export_decoupled`: the decoupled search of `decoupled_search`, stream form;
+`export_sequence`: the coarse-to-fine search on T consecutive sweeps at once, the offline batch
 form). The graph-building modules (`model`, `correlation`, `dft`, `fast_search`) never import
 this one: they build an ``nn.Module``, this module writes it.
 
