@@ -38,13 +38,13 @@ from the code: the sweep's own factored DFT and the state's layout changes (as i
 search), 2·A·R = 46 k bilinear samples of the magnitudes, two angular DFTs of R×A by A×(A + 2)
 (16.7 M multiply-adds), one rotation of (W − 2n)² = 47 k samples, one more factored DFT
 (12.6 M) and one windowed inverse (7 M): about 49 M multiply-adds and 93 k bilinear samples.
-The fast search (cart-0.4's settings) does about 147 M and 950 k (README: latency).
+The fast search (cart-0.4's settings) does about 147 M and 970 k (README: decoupled search).
 
 Not done here, measured and dropped: refining the ring yaw with a few translation correlations
 at nearby yaws. On 64 px images it was pulled towards yaw 0 (bilinear rotation blurs the less
 the closer to 0; by half a degree on validation drives turning 0.9° per sweep), and with both
 images turned by a common 8° to equalise the blur its median error (0.12–0.14°) was worse than
-the ring yaw's alone (0.065–0.09°, three validation seeds).
+the ring yaw's alone (0.065–0.09°, two validation seeds).
 
 The state is the previous masked sweep's natural half spectrum [B, 2, W, W//2 + 1], as in
 `FastStreamStep` and `MaskedCorrelator.stream_step`: states are interchangeable. The graph uses
