@@ -10,6 +10,8 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+from test_fast_search import pair_with_pose  # noqa: E402
+
 from radar_odom.latency.reference import DecoupledReference, make_reference  # noqa: E402
 from radar_odom.profiles import GridProfile  # noqa: E402
 from radar_odom_export import onnx_export  # noqa: E402
@@ -24,8 +26,6 @@ from radar_odom_export.decoupled_search import (  # noqa: E402
 from radar_odom_export.fast_search import FastStreamStep  # noqa: E402
 from radar_odom_export.model import MaskedCorrelator  # noqa: E402
 from radar_odom_export.onnx_export import export_decoupled, search_metadata  # noqa: E402
-
-from test_fast_search import pair_with_pose  # noqa: E402
 
 pytestmark = pytest.mark.torch
 
@@ -48,7 +48,8 @@ def step_for(profile, masking="raw", settings=SETTINGS, seed=0):
                                   (0.5, 0.0, 0.0)])
 def test_a_known_rotation_and_translation_are_recovered(pose):
     # 128 px at 0.5 m (64 px images hold too few rings' worth of angular detail: up to 0.6° off)
-    step = step_for(small_profile(width_px=128, resolution_m=0.5, max_translation_m=3.0), settings=DecoupledSettings(radii=32))
+    profile = small_profile(width_px=128, resolution_m=0.5, max_translation_m=3.0)
+    step = step_for(profile, settings=DecoupledSettings(radii=32))
     prev, cur = pair_with_pose(pose, 128, 0.5, count=40, radius_m=9, seed=1)
     prev, cur = torch.from_numpy(prev)[None], torch.from_numpy(cur)[None]
     with torch.no_grad():

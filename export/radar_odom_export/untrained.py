@@ -31,7 +31,8 @@ def export_untrained(profile_name: str, path, search: str = "fast") -> None:
 def main(argv=None) -> int:
     args = sys.argv[1:] if argv is None else list(argv)
     if len(args) != 3:
-        print("usage: python -m radar_odom_export.untrained PROFILE OUT.onnx fast|exhaustive|decoupled", file=sys.stderr)
+        print("usage: python -m radar_odom_export.untrained PROFILE OUT.onnx fast|exhaustive|decoupled",
+              file=sys.stderr)
         return 2
     export_untrained(*args)
     return 0
