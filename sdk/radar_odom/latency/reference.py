@@ -148,7 +148,7 @@ class DecoupledReference(FFTReference):
         self.shifts = np.arange(-s, s + 1)
         self.ring_rows = radii[:, None] * np.cos(angles)[None, :] + w // 2  # [R, A], row kr + W/2
         self.ring_cols = radii[:, None] * np.sin(angles)[None, :]
-        self.beta_yaw = float(st.get("beta_yaw", 4000.0))
+        self.beta_yaw = float(st.get("beta_yaw", 200.0))
         c_w = (w - 1) / 2
         n = self.n
         idx = np.arange(n, w - n, dtype=np.float64)
