@@ -306,15 +306,7 @@ class FastStreamStep(nn.Module):
 
     def soft_argmax(self, volume: torch.Tensor, yaws: torch.Tensor):
         """Paper eq. 3 over the evaluated yaws: volume [B, K', N, N], yaws [B, K'] → pose, covariance."""
-        p = self.profile
-        if p.pose_estimator == "parabolic":  # as `softargmax.read_pose`, on the band's yaws
-            pose = parabolic_peak(volume, self.offsets_m, self.offsets_m, yaws, p.rotation_step_rad)
-        else:
-            window = pose_window(p)
-            mask = None if window is None else peak_window(volume, self.offsets_m, self.offsets_m, yaws, *window)
-            pose, _ = band_moments(windowed_weights(volume, p.beta_pose, mask), self.offsets_m, yaws)
-        _, cov = band_moments(candidate_weights(volume, p.beta_cov).reshape(volume.shape), self.offsets_m, yaws)
-        return pose, self.model.covariance_from_moment(cov)
+        return search_soft_argmax(self.model, self.offsets_m, volume, yaws)
 
 
 class FastSequenceStep(nn.Module):
@@ -340,6 +332,21 @@ class FastSequenceStep(nn.Module):
         spec = s.spectrum(features)
         natural = s.spectrum.to_natural(spec)
         return s.match(spec[:-1], natural[:-1], features[1:], spec[1:], natural[1:])
+
+
+def search_soft_argmax(model, offsets_m: torch.Tensor, volume: torch.Tensor, yaws: torch.Tensor):
+    """Paper eq. 3 over the evaluated yaws of ``model.profile``: volume [B, K', N, N] over the
+    translations ``offsets_m`` [N] (both axes) and yaws [B, K'] → (pose [B, 3], covariance
+    [B, 3, 3], `MaskedCorrelator.covariance_from_moment` of the ``beta_cov`` moment)."""
+    p = model.profile
+    if p.pose_estimator == "parabolic":  # as `softargmax.read_pose`, on the band's yaws
+        pose = parabolic_peak(volume, offsets_m, offsets_m, yaws, p.rotation_step_rad)
+    else:
+        window = pose_window(p)
+        mask = None if window is None else peak_window(volume, offsets_m, offsets_m, yaws, *window)
+        pose, _ = band_moments(windowed_weights(volume, p.beta_pose, mask), offsets_m, yaws)
+    _, cov = band_moments(candidate_weights(volume, p.beta_cov).reshape(volume.shape), offsets_m, yaws)
+    return pose, model.covariance_from_moment(cov)
 
 
 def band_moments(weights: torch.Tensor, offsets_m: torch.Tensor, yaws: torch.Tensor):

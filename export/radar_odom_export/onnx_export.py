@@ -23,7 +23,8 @@ formula as training's precomputed grids); onnxruntime folds them once at session
 
 Every search mode writes through one function, `write_graph` (`export_model`: the exhaustive
 search, stream or pair form; `export_fast`: the coarse-to-fine search of `fast_search`, stream
-form; `export_sequence`: the same search on T consecutive sweeps at once, the offline batch
+form; `export_decoupled`: the decoupled search of `decoupled_search`, stream form;
+`export_sequence`: the coarse-to-fine search on T consecutive sweeps at once, the offline batch
 form). The graph-building modules (`model`, `correlation`, `dft`, `fast_search`) never import
 this one: they build an ``nn.Module``, this module writes it.
 
@@ -59,7 +60,7 @@ import tempfile
 import time
 import warnings
 from collections import Counter
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
@@ -71,15 +72,16 @@ from radar_odom.errors import ExportError, RadarOdomError
 from radar_odom.model_file import DEFAULT_OPSET, build_metadata, io_names
 
 from .correlation import Rotator, make_correlation, rotate_images, rotation_grids
+from .decoupled_search import DecoupledSettings, DecoupledStreamStep
 from .fast_search import FastSearchSettings, FastSequenceStep, FastStreamStep
 
 __all__ = ["DEFAULT_OPSET", "MAX_BYTES", "ExportError", "ExportReport", "Tolerance", "check_onnx_file",
-           "export_checkpoint", "export_fast", "export_model", "write_graph"]
+           "export_checkpoint", "export_decoupled", "export_fast", "export_model", "write_graph"]
 
 MAX_BYTES = 20 * 1024 * 1024
 FORBIDDEN_OPS = frozenset({"DFT", "STFT"})
 EXPORTERS = ("auto", "dynamo", "torchscript")
-SEARCHES = ("exhaustive", "fast")
+SEARCHES = ("exhaustive", "fast", "decoupled")
 TRACE_SEED, VERIFY_SEED = 0, 1  # the example inputs traced with, and the fresh ones verified on
 
 
@@ -263,9 +265,10 @@ class ExportReport:
 
     def summary(self) -> str:
         prof = json.loads(self.metadata["radar_odom.profile"])
+        search = json.loads(self.metadata.get("radar_odom.search", "null"))
         lines = [
             f"wrote {self.path} ({self.bytes / 2**20:.2f} MiB, opset {self.opset}, {self.form} form, "
-            f"exporter {self.exporter}, {self.seconds:.1f} s)",
+            f"{search_name(search)} search, exporter {self.exporter}, {self.seconds:.1f} s)",
             f"profile {prof['name']}: {prof['resolution_m']} m/px, {prof['width_px']} px, "
             f"inputs {json.loads(self.metadata['radar_odom.inputs'])} -> "
             f"{json.loads(self.metadata['radar_odom.outputs'])}",
@@ -503,9 +506,10 @@ def export_model(model, path, *, form: str = "stream", opset: int = DEFAULT_OPSE
 
 
 class FastStreamGraph(nn.Module):
-    """(sweep, prev_state) → (pose, covariance, state): `fast_search.FastStreamStep`."""
+    """(sweep, prev_state) → (pose, covariance, state): `fast_search.FastStreamStep` or
+    `decoupled_search.DecoupledStreamStep`."""
 
-    def __init__(self, step: FastStreamStep):
+    def __init__(self, step: nn.Module):
         super().__init__()
         self.step = step
 
@@ -513,9 +517,19 @@ class FastStreamGraph(nn.Module):
         return self.step(sweep, prev_state)
 
 
-def search_metadata(step: FastStreamStep) -> dict:
-    """The ``radar_odom.search`` metadata of a graph searching like ``step``."""
+def search_metadata(step) -> dict:
+    """The ``radar_odom.search`` metadata of a graph searching like ``step`` (a `FastStreamStep`:
+    kind ``coarse_to_fine``; a `DecoupledStreamStep`: kind ``decoupled``). The runtime and
+    ``radar-odom export NAME`` read the kind back (absent metadata: the exhaustive search)."""
+    if isinstance(step, DecoupledStreamStep):
+        return {"kind": "decoupled", **asdict(step.settings)}
     return {"kind": "coarse_to_fine", **asdict(step.settings), "band_rotations": step.band}
+
+
+def search_name(search: dict | None) -> str:
+    """The ``--search`` name (`SEARCHES`) of a file's ``radar_odom.search`` metadata."""
+    kind = (search or {}).get("kind")
+    return {"decoupled": "decoupled", "coarse_to_fine": "fast", None: "exhaustive"}.get(kind, str(kind))
 
 
 def export_fast(model, path, settings: FastSearchSettings | None = None, *, opset: int = DEFAULT_OPSET,
@@ -537,6 +551,27 @@ def export_fast(model, path, settings: FastSearchSettings | None = None, *, opse
         verify_inputs=example_inputs(m, "stream", seed=VERIFY_SEED) if verify else None, tolerance=tolerance,
         doc_string=f"radar-odom {radar_odom.__version__}: Masking by Moving radar odometry, profile "
                    f"{m.profile.name}, stream form, fast search {step.settings.label()}")
+
+
+def export_decoupled(model, path, settings: DecoupledSettings | None = None, *, opset: int = DEFAULT_OPSET,
+                     masking: str | None = None, training_data=None, exporter: str = "auto", verify: bool = True,
+                     tolerance: Tolerance = DEFAULT_TOLERANCE) -> ExportReport:
+    """Export ``model`` in the stream form with the decoupled search
+    (`decoupled_search.DecoupledStreamStep`: yaw from the magnitude spectra, then one translation
+    correlation); the file contract of `export_fast` with ``radar_odom.search`` kind
+    ``decoupled``. ``verify`` compares with the torch step on fresh random inputs.
+    """
+    m = copy.deepcopy(model).cpu().eval()
+    step = DecoupledStreamStep(m, settings).eval()
+    inputs = example_inputs(m, "stream", seed=TRACE_SEED)
+    fields = model_fields(m, "stream", masking, training_data, tuple(inputs[1].shape), search=search_metadata(step))
+    input_names, output_names = io_names(m.profile, "stream")
+    return write_graph(
+        FastStreamGraph(step), inputs, path, fields, input_names=input_names, output_names=output_names,
+        exporter=exporter, opset=opset, verify=verify,
+        verify_inputs=example_inputs(m, "stream", seed=VERIFY_SEED) if verify else None, tolerance=tolerance,
+        doc_string=f"radar-odom {radar_odom.__version__}: Masking by Moving radar odometry, profile "
+                   f"{m.profile.name}, stream form, decoupled search {step.settings.label()}")
 
 
 # sweeps traced and verified in the sequence form: different counts, so a graph whose sweep count
@@ -577,13 +612,15 @@ def export_sequence(model, path, settings: FastSearchSettings | None = None, *, 
 
 
 def export_checkpoint(checkpoint, path, *, form: str | None = None, opset: int = DEFAULT_OPSET,
-                      verify: bool = True, exporter: str = "auto", search: str = "exhaustive") -> ExportReport:
+                      verify: bool = True, exporter: str = "auto", search: str = "exhaustive",
+                      search_settings: dict | None = None) -> ExportReport:
     """Export a checkpoint written by `radar-odom train` (calibrated β included).
 
     ``form`` defaults to ``"stream"`` (in dual mode the stream state is the previous sweep).
     ``search="fast"`` writes the stream form with the coarse-to-fine yaw search of
     `fast_search.FastStreamStep` (default settings for the profile) instead of scoring every yaw
-    candidate; ``form="sequence"`` (fast search only) writes the offline batch form
+    candidate; ``search="decoupled"`` the stream form with the decoupled search of
+    `decoupled_search.DecoupledStreamStep`; ``form="sequence"`` (fast search only) writes the offline batch form
     (`export_sequence`).
     The expected sweep geometry is the checkpoint's ``train["sweep_geometry"]`` when recorded,
     else the model's (the CTS350-X / Oxford geometry the simulator also uses).
@@ -595,6 +632,9 @@ def export_checkpoint(checkpoint, path, *, form: str | None = None, opset: int =
     if search == "fast" and (form or "stream") == "pair":
         raise ExportError("the fast search exists for the stream and sequence forms; use --form stream or "
                           "--search exhaustive")
+    if search == "decoupled" and (form or "stream") != "stream":
+        raise ExportError("the decoupled search exists for the stream form; use --form stream or --search "
+                          "exhaustive (pair) / fast (sequence)")
     if form == "sequence" and search != "fast":
         raise ExportError("the sequence form searches with the fast search only; add --search fast")
     model, meta = load_checkpoint(checkpoint, dft="fft")
@@ -607,8 +647,18 @@ def export_checkpoint(checkpoint, path, *, form: str | None = None, opset: int =
     if "calibration" in meta:
         training["calibration"] = meta["calibration"]
     common = dict(opset=opset, masking=meta["masking"], training_data=training, exporter=exporter, verify=verify)
+    settings = None
+    if search_settings is not None and search in ("fast", "decoupled"):
+        kind = FastSearchSettings if search == "fast" else DecoupledSettings
+        known = {f.name for f in fields(kind)}
+        unknown = sorted(set(search_settings) - known - {"kind", "band_rotations"})
+        if unknown:
+            raise ExportError(f"{search} search settings {unknown} are not known to this version")
+        settings = kind(**{k: v for k, v in search_settings.items() if k in known})
     if form == "sequence":
-        return export_sequence(model, path, **common)
+        return export_sequence(model, path, settings, **common)
     if search == "fast":
-        return export_fast(model, path, **common)
+        return export_fast(model, path, settings, **common)
+    if search == "decoupled":
+        return export_decoupled(model, path, settings, **common)
     return export_model(model, path, form=form or "stream", **common)

@@ -62,6 +62,7 @@ from .data import NO_AUGMENT, Augment, DataSpecError, Drive, PairDataset
 STATE_FORMAT = "radar-odom-train-state/1"
 TRAINING_FREE = ("raw", "cfar")  # maskings with no weights: `train` only describes them
 POSE_LOSSES = ("mse", "ce", "ce+mse")
+TRAIN_SEARCHES = ("exhaustive", "decoupled")
 _MSE_TEXT = "mean[((dx^2+dy^2)/res^2) + yaw_weight*(dyaw/rotation_step)^2] (grid cells^2)"
 _CE_TEXT = "cross-entropy of softmax(beta_pose*C) against the trilinear gt target"
 
@@ -81,6 +82,7 @@ class TrainConfig:
     batch: int = 8
     yaw_weight: float = 1.0
     pose_loss: str = "mse"  # "mse" (paper) | "ce" | "ce+mse", see pose_cross_entropy
+    search: str = "exhaustive"  # "exhaustive" (the volume of every candidate) | "decoupled" (see Objective)
     grad_clip: float = 100.0  # on the global gradient norm; a rare peaked volume can spike it
     augment: Augment = field(default_factory=Augment)
     seed: int = 0
@@ -184,14 +186,27 @@ class Objective(nn.Module):
     model selection compares for the pose objectives, None for the mask objective.
     """
 
-    def __init__(self, model: nn.Module, objective: str, yaw_weight: float, pose_loss_kind: str = "mse"):
+    def __init__(self, model: nn.Module, objective: str, yaw_weight: float, pose_loss_kind: str = "mse",
+                 search: str = "exhaustive"):
         super().__init__()
         if pose_loss_kind not in POSE_LOSSES:
             raise ValueError(f"pose loss {pose_loss_kind!r}; choose one of {POSE_LOSSES}")
+        if search not in TRAIN_SEARCHES:
+            raise ValueError(f"search {search!r}; choose one of {TRAIN_SEARCHES}")
+        if search == "decoupled" and (pose_loss_kind != "mse" or getattr(model, "dual", False)):
+            raise ValueError("training through the decoupled search needs --pose-loss mse (it has no "
+                             "candidate volume to take a cross-entropy over) and a single-mode profile")
         self.model = model
         self.objective = objective
         self.yaw_weight = yaw_weight
         self.pose_loss_kind = pose_loss_kind
+        # the pose as the exported decoupled graph computes it (yaw from the magnitude spectra, one
+        # translation correlation): the loss reaches the masker through both stages
+        self.decoupled = None
+        if search == "decoupled" and objective == "pose":
+            from .decoupled_search import DecoupledPairStep, DecoupledStreamStep
+
+            self.decoupled = DecoupledPairStep(DecoupledStreamStep(model))
 
     def forward(self, batch: dict):
         if self.objective == "masks":
@@ -202,6 +217,10 @@ class Objective(nn.Module):
                 masks = self.model.mask(torch.cat([batch["prev"], batch["cur"]]))
                 labels = torch.cat([batch["label_prev"], batch["label_cur"]])
             return mask_bce(masks, labels), None
+        if self.decoupled is not None:
+            pose, _ = self.decoupled(batch["prev"], batch["cur"])
+            mse = pose_loss(pose, batch["pose"], self.model.profile, self.yaw_weight)
+            return mse, mse
         volume = self.model.correlation_volume(batch["prev"], batch["cur"])
         pose, _ = self.model.pose_from_volume(volume)
         mse = pose_loss(pose, batch["pose"], self.model.profile, self.yaw_weight)
@@ -348,6 +367,7 @@ def _config_record(cfg: TrainConfig) -> dict:
         "batch": cfg.batch,
         "yaw_weight": cfg.yaw_weight,
         "pose_loss": cfg.pose_loss,
+        "search": cfg.search,
         "grad_clip": cfg.grad_clip,
         "augment": asdict(cfg.augment),
         "seed": cfg.seed,
@@ -397,7 +417,7 @@ def train(
         train_set = MixedPairs(train_set, real_set, cfg.real_fraction, cfg.seed)
     val_set = PairDataset(val_drives, augment=NO_AUGMENT, with_labels=with_labels, seed=cfg.seed)
     model = MaskedCorrelator(cfg.profile, masking=cfg.masking, dft="fft").to(d.device)
-    objective = Objective(model, cfg.objective, cfg.yaw_weight, cfg.pose_loss)
+    objective = Objective(model, cfg.objective, cfg.yaw_weight, cfg.pose_loss, cfg.search)
     record = _config_record(cfg)
     record.update(
         world_size=d.world,
@@ -789,6 +809,7 @@ def run_from_args(args) -> dict:
             batch=args.batch,
             yaw_weight=args.yaw_weight,
             pose_loss=getattr(args, "pose_loss", "mse"),
+            search=getattr(args, "search", None) or "exhaustive",
             augment=augment,
             seed=args.seed,
             threads=args.threads,

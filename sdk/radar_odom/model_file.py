@@ -26,8 +26,9 @@ The keys (`SCHEMA`; required: always, or for stream-form / polar models only):
   bin_factor}``, how the polar sweep is reduced before the graph.
 - ``radar_odom.profile_sha256`` (hex): SHA-256 of the profile text (`profile_digest`); when
   present, a profile edited by hand is refused.
-- ``radar_odom.search`` (JSON object): settings of the coarse-to-fine yaw search
-  (``fast_search``); absent when every yaw candidate is scored.
+- ``radar_odom.search`` (JSON object): which search the graph runs and its settings: ``kind``
+  ``coarse_to_fine`` (``fast_search``) or ``decoupled`` (``decoupled_search``: yaw from the
+  magnitude spectra, then one translation correlation); absent when every yaw candidate is scored.
 - ``radar_odom.quantization`` (JSON object): how the masker's ``Conv`` nodes were quantised
   (``radar_odom_export.quantize``: scheme, op types, weight/activation types, calibration);
   absent for a float32 graph.
@@ -83,7 +84,8 @@ SCHEMA: tuple[MetadataKey, ...] = (
     MetadataKey("radar_odom.polar_input", "json-object", "polar", "{num_bins, bin_factor} of a polar input"),
     MetadataKey("radar_odom.profile_sha256", "sha256", "optional", "SHA-256 of the profile text"),
     MetadataKey("radar_odom.search", "json-object", "optional",
-                "coarse-to-fine yaw search settings; absent: every yaw candidate is scored"),
+                "the search and its settings (kind coarse_to_fine or decoupled); absent: every yaw candidate "
+                "is scored"),
     MetadataKey("radar_odom.quantization", "json-object", "optional",
                 "int8 quantisation of the masker (scheme, op types, calibration); absent: float32"),
     MetadataKey("radar_odom.masking", "text", "optional", "masking of the model", "unknown"),
@@ -263,7 +265,7 @@ class ModelInfo:
     opset: int | None
     exporter: str
     source: str
-    search: dict | None = None  # fast-search settings; None: every yaw candidate is scored
+    search: dict | None = None  # fast/decoupled search settings ("kind"); None: every yaw candidate is scored
     torch_version: str = ""
     quantization: dict | None = None  # int8 masker settings; None: a float32 graph
 

@@ -1,5 +1,9 @@
-"""``radar-odom export model.pt [-o model.onnx] [--form stream|pair|sequence] [--search exhaustive|fast] [--opset N]
-[--exporter auto|dynamo|torchscript] [--quantize int8]``."""
+"""``radar-odom export model.pt [-o model.onnx] [--form stream|pair|sequence] [--search exhaustive|fast|decoupled]
+[--opset N] [--exporter auto|dynamo|torchscript] [--quantize int8]``.
+
+A shipped name (``radar-odom export cart-0.4``) reproduces the shipped model: its search, search
+settings and form are read from the shipped ONNX file's metadata (``radar_odom.search``,
+``radar_odom.form``) unless ``--search`` / ``--form`` say otherwise."""
 from __future__ import annotations
 
 from ..model_file import DEFAULT_OPSET
@@ -19,9 +23,11 @@ def register(subparsers) -> None:
                         "pair: (previous sweep, sweep) -> (pose, covariance), for evaluation; sequence: T "
                         "consecutive sweeps -> T-1 poses and covariances in one call, for offline batches "
                         "(radar_odom.match_sequence; fast search). Default: stream")
-    p.add_argument("--search", choices=("exhaustive", "fast"), default=None,
+    p.add_argument("--search", choices=("exhaustive", "fast", "decoupled"), default=None,
                    help="exhaustive: score every yaw candidate (the paper's search); fast: coarse-to-fine yaw "
-                        "search, several times faster on a CPU, stream and sequence forms (default: exhaustive, "
+                        "search, several times faster on a CPU, stream and sequence forms; decoupled: yaw from "
+                        "the magnitude spectra first, then one translation correlation (Fast-MbyM), stream form "
+                        "(default: a shipped name's own search, read from the shipped model; else exhaustive, "
                         "fast for --form sequence)")
     p.add_argument("--opset", type=int, default=DEFAULT_OPSET,
                    help=f"ONNX opset to write; the written file is checked to have it (default: {DEFAULT_OPSET})")
@@ -62,9 +68,17 @@ def run(args) -> int:
         out = Path(args.checkpoint).with_suffix(".onnx")
     else:
         out = Path(f"{ckpt.stem}.onnx")
-    search = args.search or ("fast" if args.form == "sequence" else "exhaustive")
-    common = dict(form=args.form, opset=args.opset, verify=not args.no_verify, search=search,
+    shipped = None if Path(args.checkpoint).is_file() else shipped_export(ckpt.stem)
+    form, settings = args.form, None
+    if shipped is not None and args.search in (None, shipped["search"]) and args.form in (None, shipped["form"]):
+        # reproduce the shipped model: its search with its settings, its form
+        search, form, settings = shipped["search"], shipped["form"], shipped["settings"]
+    else:
+        search = args.search or ("fast" if args.form == "sequence" else "exhaustive")
+    common = dict(form=form, opset=args.opset, verify=not args.no_verify, search=search,
                   exporter=args.exporter)
+    if settings is not None:
+        common["search_settings"] = settings
     if args.quantize:
         try:
             from radar_odom_export.quantize import export_quantized
@@ -78,3 +92,28 @@ def run(args) -> int:
     report = export_checkpoint(ckpt, out, **common)
     print(report.summary())
     return 0
+
+
+def shipped_export(name: str) -> dict | None:
+    """How the shipped model ``name`` was exported, from its ONNX metadata: ``{"search":
+    "exhaustive" | "fast" | "decoupled", "form", "settings": the search's settings (dict) or
+    None}``; None when no model of that name is shipped."""
+    import json
+
+    import onnxruntime as ort
+
+    from ..model_zoo import pretrained, pretrained_names
+
+    if name not in pretrained_names():
+        return None
+    so = ort.SessionOptions()
+    so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL  # metadata only: cheap
+    meta = ort.InferenceSession(pretrained(name), so, providers=["CPUExecutionProvider"]).get_modelmeta()
+    meta = dict(meta.custom_metadata_map)
+    search = json.loads(meta.get("radar_odom.search", "null"))
+    kind = (search or {}).get("kind")
+    names = {None: "exhaustive", "coarse_to_fine": "fast", "decoupled": "decoupled"}
+    if kind not in names:
+        return None  # a search this version does not know: export as asked
+    settings = None if search is None else {k: v for k, v in search.items() if k not in ("kind", "band_rotations")}
+    return {"search": names[kind], "form": meta.get("radar_odom.form", "stream"), "settings": settings}

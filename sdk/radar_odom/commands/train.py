@@ -101,6 +101,14 @@ def register(subparsers) -> None:
         "when the mean sits on a wrong peak; ce+mse: both (default: %(default)s)",
     )
     g.add_argument(
+        "--search",
+        choices=("exhaustive", "decoupled"),
+        default="exhaustive",
+        help="the search the pose loss goes through: exhaustive (the volume of every yaw and shift candidate); "
+        "decoupled (yaw from the magnitude spectra, then one translation correlation, as `radar-odom export "
+        "--search decoupled` writes it; --pose-loss mse only) (default: %(default)s)",
+    )
+    g.add_argument(
         "--yaw-weight",
         type=float,
         default=1.0,

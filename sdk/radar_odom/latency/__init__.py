@@ -18,7 +18,9 @@ separate session, its JSON trace parsed and node times grouped by operator class
 ``irfft2``) and OpenCV's bilinear ``warpAffine`` on the *same masked images* — recovered from
 the graph's own stream state (the masked sweep's half spectrum) with ``irfft2``. Two variants
 are timed: the exhaustive search over every candidate of the profile, and, for models exported
-with the fast search (``radar_odom.search`` metadata), the same coarse-to-fine search. The
+with the fast search (``radar_odom.search`` metadata), the same coarse-to-fine search, or for
+the decoupled search its numpy twin (`reference.DecoupledReference`: ``rfft`` along angles,
+numpy bilinear resampling and rotation). The
 report gives graph time / reference time. The reference covers the search only (no masker).
 
 **Memory**: peak RSS (``VmHWM``) of the process, and `rss_stream`, which runs a long stream

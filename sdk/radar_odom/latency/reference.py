@@ -23,7 +23,8 @@ class FFTReference:
     ``(pose [3], covariance [3, 3])`` by the profile's soft-argmax. With ``search_settings``
     (the ``radar_odom.search`` metadata of a fast-search model) it runs the same coarse-to-fine
     search: a yaw picked on spectra cropped to ``W / coarse_factor`` px, then the band of
-    ``2b + 1`` yaws and yaw 0 at full resolution; otherwise every candidate.
+    ``2b + 1`` yaws and yaw 0 at full resolution; with the metadata of a decoupled-search model
+    (``kind: decoupled``) use `DecoupledReference` (`make_reference` picks); otherwise every candidate.
     """
 
     def __init__(self, profile, search_settings: dict | None = None):
@@ -107,6 +108,123 @@ class FFTReference:
         centred = cand - wc @ cand
         cov = self.profile.covariance_from_moment((centred * wc[:, None]).T @ centred)  # as the graph
         return pose, cov
+
+
+def _bilinear(image: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """Bilinear samples of ``image`` [H, W] at float positions (zeros outside), float64: the
+    graph's sampler (`radar_odom_export.correlation.gather_lerp` on a zero border)."""
+    h, w = image.shape
+    padded = np.zeros((h + 3, w + 3), dtype=np.float64)
+    padded[1:h + 1, 1:w + 1] = image
+    rows = np.clip(rows, -1.0, float(h)) + 1.0
+    cols = np.clip(cols, -1.0, float(w)) + 1.0
+    r0, c0 = np.floor(rows).astype(np.int64), np.floor(cols).astype(np.int64)
+    fr, fc = rows - r0, cols - c0
+    top = padded[r0, c0] + fc * (padded[r0, c0 + 1] - padded[r0, c0])
+    bottom = padded[r0 + 1, c0] + fc * (padded[r0 + 1, c0 + 1] - padded[r0 + 1, c0])
+    return top + fr * (bottom - top)
+
+
+class DecoupledReference(FFTReference):
+    """The decoupled search (Fast-MbyM; `radar_odom_export.decoupled_search`) in numpy: the yaw
+    from a circular correlation of the two magnitude spectra (``|F|``) resampled to 180° × R
+    rings, along the angle axis (``numpy.fft.rfft``), read at its parabolic peak; the current
+    image rotated once by it; one FFT translation correlation; x, y by the soft-argmax. The
+    settings are the ``radar_odom.search`` metadata (``angle_oversample``, ``radii``,
+    ``radius_min``, ``radius_max``, ``beta_yaw``).
+    """
+
+    def __init__(self, profile, search_settings: dict | None = None):
+        super().__init__(profile, None)
+        st = dict(search_settings or {})
+        w = self.width
+        self.bin_rad = profile.rotation_step_rad / int(st.get("angle_oversample", 1))
+        a = int(round(math.pi / self.bin_rad))
+        half = w / 2
+        radii = np.linspace(float(st.get("radius_min", 0.1)) * half, float(st.get("radius_max", 0.6)) * half,
+                            int(st.get("radii", 64)))
+        angles = np.arange(a) * self.bin_rad
+        s = (profile.num_rotations // 2) * int(st.get("angle_oversample", 1))
+        self.shifts = np.arange(-s, s + 1)
+        self.ring_rows = radii[:, None] * np.cos(angles)[None, :] + w // 2  # [R, A], row kr + W/2
+        self.ring_cols = radii[:, None] * np.sin(angles)[None, :]
+        self.beta_yaw = float(st.get("beta_yaw", 200.0))
+        c_w = (w - 1) / 2
+        n = self.n
+        idx = np.arange(n, w - n, dtype=np.float64)
+        self.x_px, self.y_px = (c_w - idx)[:, None], (idx - c_w)[None, :]
+
+    def rings(self, spectrum: np.ndarray) -> np.ndarray:
+        """Half spectrum (complex [W, W//2 + 1]) → zero-mean ring profiles [R, A] of ``|F|``."""
+        w = self.width
+        mag = np.sqrt(spectrum.real ** 2 + spectrum.imag ** 2 + 1e-12)
+        centred = np.concatenate([mag[w // 2:], mag[: w // 2]], axis=0)
+        rings = _bilinear(centred, self.ring_rows, self.ring_cols)
+        return rings - rings.mean(axis=1, keepdims=True)
+
+    def yaw(self, prev_spectrum: np.ndarray, cur_spectrum: np.ndarray):
+        """(yaw rad, yaw variance, cosine similarity per shift [2S + 1])."""
+        p, c = self.rings(prev_spectrum), self.rings(cur_spectrum)
+        a = p.shape[1]
+        full = np.fft.irfft((np.conj(np.fft.rfft(p, axis=1)) * np.fft.rfft(c, axis=1)).sum(axis=0), n=a)
+        cosine = full[self.shifts % a] / np.sqrt((p ** 2).sum() * (c ** 2).sum() + 1e-30)
+        yaws = self.shifts * self.bin_rad
+        yaw = _parabolic_peak(cosine, yaws, self.bin_rad)
+        z = self.beta_yaw * cosine
+        wt = np.exp(z - z.max())
+        wt /= wt.sum()
+        return yaw, float(wt @ (yaws - yaw) ** 2), cosine
+
+    def rotate(self, image: np.ndarray, yaw: float) -> np.ndarray:
+        """``S(R(yaw)ᵀ p)`` on the central (W − 2n)² square, zero-padded back to [W, W]."""
+        c_w, n = (self.width - 1) / 2, self.n
+        cos, sin = math.cos(yaw), math.sin(yaw)
+        src_x = cos * self.x_px + sin * self.y_px
+        src_y = -sin * self.x_px + cos * self.y_px
+        out = np.zeros((self.width, self.width))
+        out[n:self.width - n, n:self.width - n] = _bilinear(image, c_w - src_x, c_w + src_y)
+        return out
+
+    def search(self, prev_spectrum: np.ndarray, cur_image: np.ndarray):
+        cur_image = np.ascontiguousarray(cur_image, dtype=np.float32)
+        yaw, yaw_var, _ = self.yaw(prev_spectrum, np.fft.rfft2(cur_image))
+        vol = self._volume(prev_spectrum, self.rotate(cur_image, yaw)[None], self.n)
+        cand = self.trans.reshape(-1, 2)
+        flat = vol.reshape(-1).astype(np.float64)
+
+        def weights(beta):
+            z = beta * flat
+            e = np.exp(z - z.max())
+            return e / e.sum()
+
+        w = weights(self.profile.beta_pose)
+        pose = np.array([*(w @ cand), yaw])
+        wc = weights(self.profile.beta_cov)
+        centred = cand - wc @ cand
+        moment = np.zeros((3, 3))
+        moment[:2, :2] = (centred * wc[:, None]).T @ centred
+        moment[2, 2] = yaw_var
+        return pose, self.profile.covariance_from_moment(moment)
+
+
+def _parabolic_peak(scores: np.ndarray, values: np.ndarray, step: float) -> float:
+    """The value at the best score, moved by a parabola through it and its neighbours (clipped
+    to ±½ step; none on the border or where the parabola does not curve down)."""
+    k = int(np.argmax(scores))
+    delta = 0.0
+    if 0 < k < len(scores) - 1:
+        cm, c0, cp = scores[k - 1], scores[k], scores[k + 1]
+        curve = cm - 2 * c0 + cp
+        if curve < 0:
+            delta = float(np.clip((cm - cp) / (2 * curve), -0.5, 0.5))
+    return float(values[k] + delta * step)
+
+
+def make_reference(profile, search_settings: dict | None = None) -> FFTReference:
+    """The numpy reference of the search a model's ``radar_odom.search`` metadata names."""
+    if (search_settings or {}).get("kind") == "decoupled":
+        return DecoupledReference(profile, search_settings)
+    return FFTReference(profile, search_settings)
 
 
 def state_to_image(state: np.ndarray, width_px: int) -> np.ndarray:

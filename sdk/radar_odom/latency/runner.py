@@ -139,6 +139,9 @@ def _search_label(r: dict) -> str:
     s = r.get("search")
     if not s:
         return f"exhaustive ({_num_rotations(r['profile'])} yaws)"
+    if s.get("kind") == "decoupled":
+        angles = round(math.pi * s.get("angle_oversample", 1) / r["profile"]["rotation_step_rad"])
+        return f"decoupled ({s['radii']} rings × {angles} angles)"
     return f"coarse 1/{s['coarse_factor']} every {s['coarse_stride']}, band {s['band_rotations']} yaws" + (
         "" if s.get("rotation", "polar") == "polar" else f", {s['rotation']}"
     )

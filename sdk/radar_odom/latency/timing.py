@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .reference import FFTReference, state_to_image, state_to_spectrum
+from .reference import FFTReference, make_reference, state_to_image, state_to_spectrum
 from .stats import _summarise_ops, latency_summary, masker_time, operator_runs, peak_rss_mb
 from .sweeps import decode_png, parse_sweep
 
@@ -109,8 +109,9 @@ def _reference(model, info, pngs, odo, count, search) -> dict:
     """Graph vs numpy-FFT search on the same masked images: times and pose agreement."""
     p = info.profile
     refs = {"exhaustive": FFTReference(p)}
-    if search and search.get("band_rotations", p.num_rotations) < p.num_rotations:
-        refs["same_search"] = FFTReference(p, search)
+    if search and (search.get("kind") == "decoupled"
+                   or search.get("band_rotations", p.num_rotations) < p.num_rotations):
+        refs["same_search"] = make_reference(p, search)
     times = {k: [] for k in refs}
     diffs = {k: [] for k in refs}
     for prev, cur, pose in _stream_states(model, info, pngs, odo, count):
