@@ -123,7 +123,8 @@ def test_default_model_covariance_is_honest_on_the_held_out_stretch(drive_run):
     from radar_odom.onnx_model import OnnxModel  # the default model's cells, for the jitter
 
     prof = OnnxModel(pretrained(default_model_name()), threads=1).info.profile
-    d2 = mahalanobis_sq(gt_rel[good] - est_rel[good], covs, covariance_jitter(prof.resolution_m, prof.rotation_step_rad))
+    jitter = covariance_jitter(prof.resolution_m, prof.rotation_step_rad)
+    d2 = mahalanobis_sq(gt_rel[good] - est_rel[good], covs, jitter)
     assert good.sum() >= 70
     assert 1.0 < np.median(d2) < 5.0, np.median(d2)
     assert np.mean(d2 > 7.815) < 0.2, np.mean(d2 > 7.815)
