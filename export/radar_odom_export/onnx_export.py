@@ -540,17 +540,8 @@ def export_fast(model, path, settings: FastSearchSettings | None = None, *, opse
     ``pose``, ``covariance``, ``state``; metadata, checks) plus ``radar_odom.search`` metadata.
     ``verify`` compares with the torch fast step on fresh random inputs.
     """
-    m = copy.deepcopy(model).cpu().eval()
-    step = FastStreamStep(m, settings).eval()
-    inputs = example_inputs(m, "stream", seed=TRACE_SEED)
-    fields = model_fields(m, "stream", masking, training_data, tuple(inputs[1].shape), search=search_metadata(step))
-    input_names, output_names = io_names(m.profile, "stream")
-    return write_graph(
-        FastStreamGraph(step), inputs, path, fields, input_names=input_names, output_names=output_names,
-        exporter=exporter, opset=opset, verify=verify,
-        verify_inputs=example_inputs(m, "stream", seed=VERIFY_SEED) if verify else None, tolerance=tolerance,
-        doc_string=f"radar-odom {radar_odom.__version__}: Masking by Moving radar odometry, profile "
-                   f"{m.profile.name}, stream form, fast search {step.settings.label()}")
+    return _export_stream_step(model, path, FastStreamStep, settings, "fast", opset=opset, masking=masking,
+                               training_data=training_data, exporter=exporter, verify=verify, tolerance=tolerance)
 
 
 def export_decoupled(model, path, settings: DecoupledSettings | None = None, *, opset: int = DEFAULT_OPSET,
@@ -561,8 +552,16 @@ def export_decoupled(model, path, settings: DecoupledSettings | None = None, *, 
     correlation); the file contract of `export_fast` with ``radar_odom.search`` kind
     ``decoupled``. ``verify`` compares with the torch step on fresh random inputs.
     """
+    return _export_stream_step(model, path, DecoupledStreamStep, settings, "decoupled", opset=opset, masking=masking,
+                               training_data=training_data, exporter=exporter, verify=verify, tolerance=tolerance)
+
+
+def _export_stream_step(model, path, step_cls, settings, search_name: str, *, opset: int, masking, training_data,
+                        exporter: str, verify: bool, tolerance: Tolerance) -> ExportReport:
+    """The stream form of ``step_cls(model, settings)`` (a search step with ``settings.label()``
+    and `search_metadata`), written by `write_graph` with the file contract of `export_model`."""
     m = copy.deepcopy(model).cpu().eval()
-    step = DecoupledStreamStep(m, settings).eval()
+    step = step_cls(m, settings).eval()
     inputs = example_inputs(m, "stream", seed=TRACE_SEED)
     fields = model_fields(m, "stream", masking, training_data, tuple(inputs[1].shape), search=search_metadata(step))
     input_names, output_names = io_names(m.profile, "stream")
@@ -571,7 +570,7 @@ def export_decoupled(model, path, settings: DecoupledSettings | None = None, *, 
         exporter=exporter, opset=opset, verify=verify,
         verify_inputs=example_inputs(m, "stream", seed=VERIFY_SEED) if verify else None, tolerance=tolerance,
         doc_string=f"radar-odom {radar_odom.__version__}: Masking by Moving radar odometry, profile "
-                   f"{m.profile.name}, stream form, decoupled search {step.settings.label()}")
+                   f"{m.profile.name}, stream form, {search_name} search {step.settings.label()}")
 
 
 # sweeps traced and verified in the sequence form: different counts, so a graph whose sweep count

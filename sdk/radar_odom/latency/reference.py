@@ -6,6 +6,13 @@ import math
 import numpy as np
 
 
+def softmax_weights(scores: np.ndarray, beta: float) -> np.ndarray:
+    """float64[N]: softmax(β·scores), the candidate weights of the graph's soft-argmax (paper eq. 3)."""
+    z = beta * scores
+    e = np.exp(z - z.max())
+    return e / e.sum()
+
+
 def _rotation_matrix(yaw_rad: float, width_px: int) -> np.ndarray:
     """2×3 ``warpAffine`` map (with WARP_INVERSE_MAP) from output to input pixel (u=col, v=row)
     that samples ``S(R(yaw)ᵀ p)`` about the image centre: the graph's rotation convention
@@ -97,14 +104,9 @@ class FFTReference:
         cand = cand.reshape(-1, 3)
         flat = vol.reshape(-1).astype(np.float64)
 
-        def weights(beta):
-            z = beta * flat
-            e = np.exp(z - z.max())
-            return e / e.sum()
-
-        w = weights(self.profile.beta_pose)
+        w = softmax_weights(flat, self.profile.beta_pose)
         pose = w @ cand
-        wc = weights(self.profile.beta_cov)
+        wc = softmax_weights(flat, self.profile.beta_cov)
         centred = cand - wc @ cand
         cov = self.profile.covariance_from_moment((centred * wc[:, None]).T @ centred)  # as the graph
         return pose, cov
@@ -192,14 +194,9 @@ class DecoupledReference(FFTReference):
         cand = self.trans.reshape(-1, 2)
         flat = vol.reshape(-1).astype(np.float64)
 
-        def weights(beta):
-            z = beta * flat
-            e = np.exp(z - z.max())
-            return e / e.sum()
-
-        w = weights(self.profile.beta_pose)
+        w = softmax_weights(flat, self.profile.beta_pose)
         pose = np.array([*(w @ cand), yaw])
-        wc = weights(self.profile.beta_cov)
+        wc = softmax_weights(flat, self.profile.beta_cov)
         centred = cand - wc @ cand
         moment = np.zeros((3, 3))
         moment[:2, :2] = (centred * wc[:, None]).T @ centred
