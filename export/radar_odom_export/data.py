@@ -336,20 +336,26 @@ def sequence_drives(seq_dir, profile: GridProfile, root: Path | None = None, use
             with open(tmp, "wb") as fh:
                 np.savez_compressed(fh, images=images, poses_rel=poses)
             os.replace(tmp, cache)
-    # cut at pairs without ground truth: a drive is a run of sweeps whose every pair has a pose
-    ok = np.all(np.isfinite(poses), axis=1)
-    drives, start = [], 0
-    for k in range(len(ok) + 1):
-        if k == len(ok) or not ok[k]:
-            if k > start:  # pairs start..k-1 -> sweeps start..k
-                drives.append((start, k))
-            start = k + 1
+    drives = pose_runs(poses)
     if not drives:
         raise SequenceError(f"{seq_dir}: no pair of consecutive sweeps has a ground-truth pose")
     if len(drives) == 1:
         a, b = drives[0]
         return [Drive(seq_dir.name, images[a : b + 1], poses[a:b])]
     return [Drive(f"{seq_dir.name}[{i}]", images[a : b + 1], poses[a:b]) for i, (a, b) in enumerate(drives)]
+
+
+def pose_runs(poses_rel: np.ndarray) -> list[tuple[int, int]]:
+    """[(a, b)]: the runs of sweeps a..b (inclusive) whose every consecutive pair has a pose
+    (rows a..b−1 of ``poses_rel`` [F−1, 3] finite): a pair without ground truth (NaN row) ends one."""
+    ok = np.all(np.isfinite(poses_rel), axis=1)
+    runs, start = [], 0
+    for k in range(len(ok) + 1):
+        if k == len(ok) or not ok[k]:
+            if k > start:  # pairs start..k-1 -> sweeps start..k
+                runs.append((start, k))
+            start = k + 1
+    return runs
 
 
 def split_by_drive(drives: Sequence[Drive], val_fraction: float = 0.2) -> tuple[list[Drive], list[Drive]]:

@@ -41,6 +41,7 @@ from .data import (
     _stable_hash,
     cache_dir,
     grid_key,
+    pose_runs,
     scan_to_cartesian,
 )
 
@@ -118,13 +119,8 @@ def real_runs(path, profile: GridProfile, holdout: int = DEFAULT_HOLDOUT, use_ca
     ``real:<recording>-<first sweep>``: drives for calibration and evaluation, where every
     consecutive pair is used as it is (`calibrate.pair_weights` finds them by that prefix)."""
     d = real_drive(path, profile, holdout, use_cache)
-    ok = np.all(np.isfinite(d.poses_rel), axis=1)
-    runs, start = [], 0
-    for k in range(len(ok) + 1):
-        if k == len(ok) or not ok[k]:
-            if k > start:
-                runs.append(Drive(f"real:{Path(path).name}-{start}", d.images[start : k + 1], d.poses_rel[start:k]))
-            start = k + 1
+    runs = [Drive(f"real:{Path(path).name}-{a}", d.images[a : b + 1], d.poses_rel[a:b])
+            for a, b in pose_runs(d.poses_rel)]
     if not runs:
         raise SequenceError(f"{path}: no consecutive pair with a reference pose outside the held-out stretch")
     return runs
