@@ -25,7 +25,9 @@ both printed (`radar_odom.run.gnss_reference`). Score: KITTI translational (%) a
 sweeps, pooled over segments; and per pair (`radar_odom.metrics.step_biases`): the step scale
 (Σ estimated / Σ reference step length over pairs moving ≥ 1 m), the direction of the estimated
 translation against the reference's on straight pairs (median, + = to the sensor's +y, right),
-and the RMS yaw error per pair while moving and while standing still; the covariance's fit, mean
+the RMS yaw error per pair while moving and while standing still, the yaw slope over pairs turning
+> 0.2° (1 = turns read in full) and, for the graph's own matches before the motion prior, its yaw
+slope and the share of pairs read as exactly 0 yaw (the yaw pull); the covariance's fit, mean
 and median d² of each step's reported covariance against the reference (χ²(3): 3 and 2.37) and
 the share above χ²(3)'s 95 % point. The plot draws every trajectory (de-skew off) over the reference.
 ``--stretch A:B`` scores sweeps A..B−1 only (a fresh stream from A; the reference aligned on the
@@ -107,13 +109,23 @@ def run_kiss(scans, deskew: bool) -> np.ndarray:
     return chain_relative(rel)
 
 
-def score(gt, est) -> dict:
+def score(gt, est, estimates=None) -> dict:
+    """KITTI figures and per-pair biases of absolute poses ``est`` against ``gt``; with the run's
+    `radar_odom.Estimate` list, the graph's own matches (``Estimate.measurement``, before the motion
+    prior) give ``"graph"``: their yaw slope and exact-zero share (the yaw pull, `step_biases`)."""
     from radar_odom.metrics import kitti_lengths_for, kitti_metrics, path_lengths_m, step_biases
+    from radar_odom.se2 import relative_from_absolute
 
     lengths = kitti_lengths_for(path_lengths_m(gt)[-1])
     m = kitti_metrics(gt, est, step=4, lengths=lengths, pooling="segments")
-    return {"t": m["translation_percent"], "r": m["rotation_deg_per_m"], "segments": m["num_segments"],
-            "lengths": lengths, "steps": step_biases(gt, est)}
+    out = {"t": m["translation_percent"], "r": m["rotation_deg_per_m"], "segments": m["num_segments"],
+           "lengths": lengths, "steps": step_biases(gt, est)}
+    if estimates is not None:
+        gt_rel = relative_from_absolute(gt)
+        graph = np.array([e.measurement if e.measurement is not None else e.pose for e in estimates])
+        ok = np.all(np.isfinite(gt_rel), axis=1) & np.array([not e.degenerate for e in estimates])
+        out["graph"] = step_biases(gt_rel[ok], graph[ok])
+    return out
 
 
 def plot(path: Path, gt, rows: dict, title: str) -> None:
@@ -195,12 +207,14 @@ def main(argv=None) -> int:
     for label, model in models.items():
         for deskew in deskews:
             poses, s_per, gaps, ests, profile = run_model(model, scans, deskew, with_estimates=True)
-            sc = score(gt, poses)
+            sc = score(gt, poses, ests)
             sc["d2"] = covariance_fit(gt, poses, ests, profile)
             results.append((label, deskew, sc, f"{1e3 * s_per:.0f}", gaps))
             st = sc["steps"]
             print(f"{label:40s} de-skew {'on ' if deskew else 'off'}: {sc['t']:6.2f} %  {sc['r']:.4f} °/m  "
                   f"scale {st['scale']:.3f}  direction {st['direction_deg']:+.2f}°  yaw rms {st['yaw_rms_deg']:.2f}°  "
+                  f"yaw slope {st['yaw_slope']:.3f} (graph {sc['graph']['yaw_slope']:.3f}, exact 0 "
+                  f"{100 * sc['graph']['exact_zero_share']:.1f} %)  "
                   f"d² {sc['d2']['mean']:.3g} / {sc['d2']['median']:.3g} "
                   f"({1e3 * s_per:.0f} ms/sweep, {gaps} gaps crossed)", flush=True)
             if not deskew:
@@ -227,16 +241,20 @@ def main(argv=None) -> int:
         f"{results[0][2]['segments']} segments):",
         "",
         "| matcher | de-skew | translation % | rotation °/m | step scale | direction ° | yaw RMS ° (moving / still) "
-        "| d² mean / median (share > χ² 95 %) | ms per sweep | gaps crossed |",
-        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "| yaw slope (graph alone) | exact-0 yaw, graph alone | d² mean / median (share > χ² 95 %) | ms per sweep "
+        "| gaps crossed |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for label, deskew, sc, ms, gaps in results:
         st = sc["steps"]
         d2 = (f"{sc['d2']['mean']:.3g} / {sc['d2']['median']:.3g} ({100 * sc['d2']['above_95']:.0f} %)"
               if "d2" in sc else "")
+        graph = sc.get("graph")
+        slope = f"{st['yaw_slope']:.3f}" + (f" ({graph['yaw_slope']:.3f})" if graph else "")
+        zeros = f"{100 * graph['exact_zero_share']:.1f} %" if graph else ""
         lines.append(f"| {label} | {'on' if deskew else 'off'} | {sc['t']:.2f} | {sc['r']:.4f} | {st['scale']:.3f} | "
-                     f"{st['direction_deg']:+.2f} | {st['yaw_rms_deg']:.2f} / {st['yaw_rms_still_deg']:.2f} | {d2} "
-                     f"| {ms} | {gaps} |")
+                     f"{st['direction_deg']:+.2f} | {st['yaw_rms_deg']:.2f} / {st['yaw_rms_still_deg']:.2f} | {slope} "
+                     f"| {zeros} | {d2} | {ms} | {gaps} |")
     table = "\n".join(lines)
     print(table)
     if args.markdown:

@@ -152,6 +152,48 @@ def gather_lerp(flat: torch.Tensor, index: torch.Tensor, fr: torch.Tensor, fc: t
     return top + fr * (bottom - top)
 
 
+def keys_weights(t: torch.Tensor) -> torch.Tensor:
+    """float[..., 4]: Keys' cubic convolution weights (a = −0.5) of the neighbours at offsets
+    −1, 0, 1, 2 from a sample at fraction ``t`` ∈ [0, 1) past neighbour 0 (they sum to 1)."""
+    a = -0.5
+    d = torch.stack([t + 1.0, t, 1.0 - t, 2.0 - t], dim=-1)  # distances, two in [0, 1], two in [1, 2]
+    near = ((a + 2.0) * d - (a + 3.0)) * d * d + 1.0
+    far = ((a * d - 5.0 * a) * d + 8.0 * a) * d - 4.0 * a
+    return torch.where(d <= 1.0, near, far)
+
+
+def cubic_table(rows: torch.Tensor, cols: torch.Tensor, height: int, width: int):
+    """Where samples at pixel positions (rows, cols) read a source [height, width] padded with
+    zeros by 2 px before and 3 px after on both axes (`CUBIC_PAD`): (flat index of the neighbour
+    at (−1, −1) from the top-left one, int64; row weights [..., 4]; column weights [..., 4]).
+    Positions outside clamp into the zero border. `gather_cubic` samples with it."""
+    rows = rows.clamp(-1.0, float(height))
+    cols = cols.clamp(-1.0, float(width))
+    r0, c0 = torch.floor(rows), torch.floor(cols)
+    index = ((r0 + 1.0) * (width + 5) + (c0 + 1.0)).to(torch.int64)
+    return index, keys_weights(rows - r0), keys_weights(cols - c0)
+
+
+CUBIC_PAD = (2, 3, 2, 3)  # F.pad of the source for `cubic_table`: 2 before, 3 after, both axes
+
+
+def gather_cubic(flat: torch.Tensor, index: torch.Tensor, wr: torch.Tensor, wc: torch.Tensor,
+                 stride: int) -> torch.Tensor:
+    """Cubic samples of ``flat`` [N, L] (rows of ``stride`` values) from a `cubic_table`:
+    sixteen ``GatherElements`` weighted by row and column weights [..., M, 4] (broadcast against
+    [N, M]). Interpolating (it passes through the pixels), so a sample on a pixel is that pixel,
+    and its blur between pixels is far less phase-dependent than the bilinear one's."""
+    out = None
+    for i in range(4):
+        row = None
+        for j in range(4):
+            at = torch.gather(flat, 1, index + (i * stride + j)) * wc[..., j]
+            row = at if row is None else row + at
+        term = row * wr[..., i]
+        out = term if out is None else out + term
+    return out
+
+
 class PolarRotator(nn.Module):
     """Rotate images by whole yaw steps through one shared polar resampling.
 
@@ -176,8 +218,11 @@ class PolarRotator(nn.Module):
     """
 
     def __init__(self, width_px: int, step_rad: float, radius_px: float, max_shift: int,
-                 oversample: int = 2, radial_step_px: float = 0.5):
+                 oversample: int = 2, radial_step_px: float = 0.5, kernel: str = "bilinear"):
         super().__init__()
+        if kernel not in ("bilinear", "cubic"):
+            raise ValueError(f"kernel={kernel!r}: choose 'bilinear' or 'cubic'")
+        self.kernel = kernel  # of the first resampling (image → polar grid); the second is bilinear
         steps = 2 * math.pi / step_rad
         if abs(steps - round(steps)) > 1e-6:
             raise ValueError(f"rotation step {step_rad} rad does not divide the full turn; "
@@ -207,7 +252,7 @@ class PolarRotator(nn.Module):
         far = torch.full((phi.shape[0], 1), 2.0 * w, dtype=dtype)
         rows = torch.cat([far, rows, far, far], dim=1)
         cols = torch.cat([far, cols, far, far], dim=1)
-        to_polar = bilinear_table(rows, cols, w, w)
+        to_polar = (cubic_table if self.kernel == "cubic" else bilinear_table)(rows, cols, w, w)
         idx = torch.arange(w, dtype=dtype)
         x = (c_w - idx)[:, None].expand(w, w)
         y = (idx - c_w)[None, :].expand(w, w)
@@ -223,10 +268,15 @@ class PolarRotator(nn.Module):
         a = self.azimuths
         to_polar, (az, rho) = self._tables(images.dtype)
         b, w = images.shape[0], self.width_px
-        flat = F.pad(images, (1, 2, 1, 2)).reshape(b, -1)
         index, fr, fc = to_polar
-        wrapped = gather_lerp(flat, index.reshape(1, -1).expand(b, -1), fr.reshape(1, -1),
-                               fc.reshape(1, -1), w + 3, source_differences=True)
+        if self.kernel == "cubic":
+            flat = F.pad(images, CUBIC_PAD).reshape(b, -1)
+            wrapped = gather_cubic(flat, index.reshape(1, -1).expand(b, -1), fr.reshape(1, -1, 4),
+                                   fc.reshape(1, -1, 4), w + 5)
+        else:
+            flat = F.pad(images, (1, 2, 1, 2)).reshape(b, -1)
+            wrapped = gather_lerp(flat, index.reshape(1, -1).expand(b, -1), fr.reshape(1, -1),
+                                  fc.reshape(1, -1), w + 3, source_differences=True)
         return wrapped, bilinear_table(az, rho, a + 1, self.radii), (az, rho)
 
     def _rotate(self, wrapped: torch.Tensor, index: torch.Tensor, fr: torch.Tensor, fc: torch.Tensor):
@@ -330,7 +380,8 @@ class Rotator(nn.Module):
         if not self.exact_identity:
             # features are zero beyond the support disc (model.support_disc): rotate only that
             disc_px = (profile.width_px - 1) / 2 - profile.translation_cells
-            self.polar = PolarRotator(profile.width_px, profile.rotation_step_rad, disc_px, self.zero_index)
+            self.polar = PolarRotator(profile.width_px, profile.rotation_step_rad, disc_px, self.zero_index,
+                                      kernel=profile.rotation_kernel)
             self.shifts = [k - self.zero_index for k in range(len(yaws))]
         others = torch.tensor([y for y in yaws if y != 0.0], dtype=torch.float64)
         if self.exact_identity:

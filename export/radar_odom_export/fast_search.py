@@ -154,6 +154,22 @@ def crop_spectrum(state: torch.Tensor, width_px: int, low_px: int) -> torch.Tens
     return t * keep
 
 
+def sub_step_offset(scores: torch.Tensor, best: torch.Tensor, stride: int) -> torch.Tensor:
+    """int64[B]: fine yaw steps from the best coarse yaw to the peak of a parabola through its score
+    and its two neighbours' (``scores`` [B, Kc] over coarse yaws ``stride`` fine steps apart, ``best``
+    int64[B] the argmax), rounded to a whole step, within ±stride/2; 0 where the best is at the
+    list's end or the parabola does not curve down."""
+    kc = scores.shape[1]
+    lo = torch.gather(scores, 1, (best - 1).clamp(0, kc - 1).unsqueeze(1)).squeeze(1)
+    mid = torch.gather(scores, 1, best.unsqueeze(1)).squeeze(1)
+    hi = torch.gather(scores, 1, (best + 1).clamp(0, kc - 1).unsqueeze(1)).squeeze(1)
+    den = lo - 2.0 * mid + hi
+    ok = (best > 0) & (best < kc - 1) & (den < 0)
+    safe = torch.where(ok, den, -torch.ones_like(den))
+    frac = torch.where(ok, (0.5 * (lo - hi) / safe).clamp(-0.5, 0.5), torch.zeros_like(den))
+    return torch.round(frac * stride).to(torch.int64)
+
+
 class CoarseYawSelector(nn.Module):
     """Index (into ``profile.rotations_rad``) of the yaw that a low-res search scores best.
 
@@ -173,11 +189,13 @@ class CoarseYawSelector(nn.Module):
         idx = sorted({*range(centre, -1, -s), *range(centre, k, s)})  # symmetric, holds yaw 0
         self.register_buffer("indices", torch.tensor(idx, dtype=torch.int64), persistent=False)
         self.centre = centre
+        self.stride = s
         self.index_list = idx
         yaws = torch.tensor(profile.rotations_rad, dtype=torch.float64)[idx]
         self.register_buffer("yaws", yaws.to(torch.float32), persistent=False)
         self.rotator = (None if settings.rotation == "bilinear" else
-                        PolarRotator(self.low_px, profile.rotation_step_rad, (self.low_px - 1) / 2, centre))
+                        PolarRotator(self.low_px, profile.rotation_step_rad, (self.low_px - 1) / 2, centre,
+                                     kernel=profile.rotation_kernel))
         self.image = LowResImage(self.low_px)
         self.spectrum = FactoredSpectrum(self.low_px)
         self.inverse = WindowedInverse(self.low_px, max(1, math.ceil(profile.translation_cells / f)))
@@ -193,8 +211,16 @@ class CoarseYawSelector(nn.Module):
         # Normalised by each rotated image's norm: interpolation blurs every rotation but the
         # identity, and the energy it removes would otherwise pull the pick towards yaw 0.
         norm = torch.sqrt((rotated * rotated).flatten(2).sum(dim=-1) + 1e-12)
-        best = (volume.flatten(2).amax(dim=-1) / norm).argmax(dim=-1)
-        return self.indices[best]
+        scores = volume.flatten(2).amax(dim=-1) / norm  # [B, Kc]
+        best = scores.argmax(dim=-1)
+        if self.stride == 1:
+            return self.indices[best]
+        # Between two coarse yaws (stride steps apart) the peak can sit anywhere: a band centred on
+        # the nearer coarse yaw would put a peak half-way at its edge, where the read-out has no
+        # neighbour to refine with (a 0.6 °/sweep turn read as exactly 0.000 with a band from 0 to
+        # 2° in 1°-stride coarse picks). A parabola through the best coarse score and its two
+        # neighbours places the peak to within a fine step; the band is centred on that step.
+        return self.indices[best] + sub_step_offset(scores, best, self.stride)
 
 
 # ============================================================================ the step
@@ -229,7 +255,8 @@ class FastStreamStep(nn.Module):
         # features are zero beyond the support disc (model.support_disc): rotate only that
         disc_px = (p.width_px - 1) / 2 - p.translation_cells
         self.rotator = (None if self.settings.rotation == "bilinear" else
-                        PolarRotator(p.width_px, p.rotation_step_rad, disc_px, p.num_rotations // 2))
+                        PolarRotator(p.width_px, p.rotation_step_rad, disc_px, p.num_rotations // 2,
+                                     kernel=p.rotation_kernel))
         self.exact_identity = p.rotation_identity == "exact"
         if self.rotator is None and not self.exact_identity:
             raise ValueError(f"profile {p.name!r} scores yaw 0 resampled (rotation_identity="

@@ -200,7 +200,11 @@ def relative_pose_errors(gt_rel, est_rel) -> dict:
     }
 
 
-def step_biases(gt_rel, est_rel, min_step_m: float = 1.0, straight_deg: float = 0.5) -> dict:
+EXACT_ZERO_RAD = 1e-7  # an estimated yaw this close to 0 is the identity candidate itself, not a measurement
+
+
+def step_biases(gt_rel, est_rel, min_step_m: float = 1.0, straight_deg: float = 0.5,
+                turning_deg: float = 0.2) -> dict:
     """Systematic errors of the per-pair estimates, which KITTI segments mix with the random walk
     of the heading: a matcher that reads every step 2 % short, or points its translation 1.5° to
     one side, scores worse however small its noise.
@@ -210,6 +214,7 @@ def step_biases(gt_rel, est_rel, min_step_m: float = 1.0, straight_deg: float = 
         min_step_m: pairs whose reference translation is shorter are left out (standing still:
             scale and direction are undefined there).
         straight_deg: a pair is "straight" when its reference yaw is within this many degrees.
+        turning_deg: a pair is "turning" when its reference yaw exceeds this many degrees.
 
     Returns:
         ``"scale"``: Σ‖t_est‖ / Σ‖t_gt‖ over the moving pairs (1 = no scale error);
@@ -217,7 +222,11 @@ def step_biases(gt_rel, est_rel, min_step_m: float = 1.0, straight_deg: float = 
         direction atan2(y, x) minus the reference's (positive = towards +y of the sensor frame);
         ``"yaw_rms_deg"``: RMS of the wrapped yaw error over the moving pairs;
         ``"yaw_rms_still_deg"``: the same over the other pairs (NaN if none);
-        ``"num_moving"``, ``"num_straight"`` (ints). NaN where no pair qualifies.
+        ``"yaw_slope"``: Σ yaw_est·yaw_gt / Σ yaw_gt² over the turning pairs (a least-squares
+        line through the origin: 1 = turns read in full, below 1 = shrunk toward "no rotation");
+        ``"exact_zero_share"``: the share of all pairs whose estimated yaw is exactly 0 (within
+        `EXACT_ZERO_RAD`): the search's identity candidate read out without sub-step refinement;
+        ``"num_moving"``, ``"num_straight"``, ``"num_turning"`` (ints). NaN where no pair qualifies.
     """
     gt = _as_xyyaw(gt_rel, "gt_rel")
     est = _as_xyyaw(est_rel, "est_rel")
@@ -232,14 +241,19 @@ def step_biases(gt_rel, est_rel, min_step_m: float = 1.0, straight_deg: float = 
         return float(np.sqrt(np.mean(a**2))) if len(a) else math.nan
 
     direction = np.degrees(wrap_angle(np.arctan2(est[:, 1], est[:, 0]) - np.arctan2(gt[:, 1], gt[:, 0])))
+    turning = np.abs(np.degrees(gt[:, 2])) > turning_deg
     return {
         "scale": float(np.hypot(est[moving, 0], est[moving, 1]).sum() / gt_len[moving].sum())
         if moving.any() else math.nan,
         "direction_deg": float(np.median(direction[straight])) if straight.any() else math.nan,
         "yaw_rms_deg": rms(yaw_err[moving]),
         "yaw_rms_still_deg": rms(yaw_err[~moving]),
+        "yaw_slope": float(np.sum(est[turning, 2] * gt[turning, 2]) / np.sum(gt[turning, 2] ** 2))
+        if turning.any() else math.nan,
+        "exact_zero_share": float(np.mean(np.abs(est[:, 2]) < EXACT_ZERO_RAD)) if len(est) else math.nan,
         "num_moving": int(moving.sum()),
         "num_straight": int(straight.sum()),
+        "num_turning": int(turning.sum()),
     }
 
 

@@ -30,6 +30,7 @@ SWEEP_PERIOD_S = 0.25
 PAPER_TRANSLATION_M = 50.0
 INPUT_NORMS = ("none", "floor-scale")
 ROTATION_IDENTITIES = ("exact", "resampled")
+ROTATION_KERNELS = ("bilinear", "cubic")
 
 
 @dataclass(frozen=True)
@@ -79,6 +80,14 @@ class GridProfile:
     # "resampled": yaw 0 goes through the same resampling as every other yaw (the polar round
     # trip of `PolarRotator`, in training and in both exported searches), so no yaw is favoured.
     rotation_identity: str = "exact"
+    # The kernel of the polar rotation's first resampling (Cartesian image → polar grid), where
+    # each yaw candidate's samples land at another sub-pixel phase of the image: "bilinear" (the
+    # files made before this field) blurs by an amount that depends on that phase, least where the
+    # samples sit on the pixels themselves — at the search centre, yaw 0 — so every candidate but
+    # the centre loses high-frequency energy and small turns read shrunk toward 0 (simulated
+    # 0.61 °/sweep curve: 0.41 of the turn with bilinear, 0.68 with cubic, 0.65 with an exact
+    # Fourier rotation; benchmarks/yaw_precision.py). "cubic": Keys' cubic convolution (a = −0.5).
+    rotation_kernel: str = "bilinear"
     # Input normalisation (module docstring): "none" | "floor-scale". The floor is this quantile
     # over azimuth of each range ring, the scale this quantile of the floor-free image over the
     # support disc; the normalised image is clipped at norm_clip (0: no clip).
@@ -112,6 +121,8 @@ class GridProfile:
             raise ValueError(f"profile {self.name!r}: pose_estimator must be 'soft-argmax' or 'parabolic'")
         if self.rotation_identity not in ROTATION_IDENTITIES:
             raise ValueError(f"profile {self.name!r}: rotation_identity must be one of {ROTATION_IDENTITIES}")
+        if self.rotation_kernel not in ROTATION_KERNELS:
+            raise ValueError(f"profile {self.name!r}: rotation_kernel must be one of {ROTATION_KERNELS}")
         if self.input_norm not in INPUT_NORMS:
             raise ValueError(f"profile {self.name!r}: input_norm must be one of {INPUT_NORMS}")
         if not (0 < self.norm_floor_quantile <= 1 and 0 < self.norm_scale_quantile <= 1 and self.norm_clip >= 0):
@@ -193,12 +204,13 @@ class GridProfile:
 PROFILES: dict[str, GridProfile] = {
     p.name: p
     for p in (
-        GridProfile("cart-0.8", resolution_m=0.8, width_px=128, input_norm="floor-scale"),
+        GridProfile("cart-0.8", resolution_m=0.8, width_px=128, input_norm="floor-scale", rotation_kernel="cubic"),
         # cart-0.4 scores yaw 0 resampled like every other yaw (the shipped model is trained so);
         # trained so, cart-0.8 measured worse on held-out drives (README) and keeps the exact one
         GridProfile("cart-0.4", resolution_m=0.4, width_px=256, mask_downsample=2, input_norm="floor-scale",
-                    rotation_identity="resampled"),
-        GridProfile("cart-0.2", resolution_m=0.2, width_px=512, mask_downsample=4, input_norm="floor-scale"),
+                    rotation_identity="resampled", rotation_kernel="cubic"),
+        GridProfile("cart-0.2", resolution_m=0.2, width_px=512, mask_downsample=4, input_norm="floor-scale",
+                    rotation_kernel="cubic"),
         GridProfile("polar-0.4", resolution_m=0.4, width_px=256, input_kind="polar", input_norm="floor-scale"),
         GridProfile("dual-0.8", resolution_m=0.8, width_px=128, mode="dual", input_norm="floor-scale"),
     )

@@ -177,6 +177,9 @@ class DriveConfig:
     lane_change_length_m: Range = (35.0, 60.0)
     lead_in_m: float = 250.0  # straight road behind the start (followers behind, world behind)
     constant_speed_mps: float | None = None  # test hook: straight road, this exact speed, no stops
+    # test hook with constant_speed_mps: after the lead-in the road bends at this constant curvature
+    # (1/m, positive turns right) instead of running straight: a steady yaw rate (benchmarks/yaw_precision.py)
+    constant_curvature_per_m: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -132,6 +132,15 @@ def _curvature_profile(cfg: DriveConfig, length_m: float, rng: np.random.Generat
     k_pts.append(0.0)
     straight_only = cfg.constant_speed_mps is not None
     while s < length_m:
+        if straight_only and cfg.constant_curvature_per_m:
+            # a steady bend from the end of the lead-in: ramp into the curvature, then hold it
+            s += cfg.curvature_ramp_m
+            s_pts.append(s)
+            k_pts.append(float(cfg.constant_curvature_per_m))
+            s = max(s, length_m)
+            s_pts.append(s)
+            k_pts.append(float(cfg.constant_curvature_per_m))
+            break
         s += _u(rng, cfg.straight_length_m) if not straight_only else length_m
         s_pts.append(s)
         k_pts.append(0.0)
@@ -161,7 +170,7 @@ def _curvature_profile(cfg: DriveConfig, length_m: float, rng: np.random.Generat
                 stops.append((s - 8.0, _u(rng, cfg.stop_duration_s)))
             inters.append(s)
     s_pts.append(max(s, length_m) + 1.0)
-    k_pts.append(0.0)
+    k_pts.append(k_pts[-1] if straight_only else 0.0)
     return (np.array(s_pts), np.array(k_pts), np.array(inters), np.array(turns).reshape(-1, 2),
             stops, np.array(cruise_s), np.array(cruise_v))
 
