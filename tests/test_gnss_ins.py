@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from radar_odom import SequenceError
-from radar_odom.errors import ConfigError
+from radar_odom.errors import ConfigError, GroundTruthWarning
 from radar_odom.formats import read_sequence
 from radar_odom.formats.gnss_ins import (
     ClockOffset,
@@ -21,6 +21,7 @@ from radar_odom.formats.gnss_ins import (
     enu_from_geodetic,
     estimate_clock_offset_s,
     estimate_heading_offset_rad,
+    heading_offset_track_rad,
     poses_at,
     quaternion_yaw_rad,
     read_radiate_gnss_ins,
@@ -381,28 +382,43 @@ def _lines_of(root):
     return (root / "GPS_IMU_Twist.txt").read_text().splitlines()
 
 
-def test_missing_or_garbled_sample_files(tmp_path, drive):
+def _restore(root, lines):
+    (root / "GPS_IMU_Twist.txt").write_text("\n".join(lines) + "\n")
+    return root
+
+
+def test_missing_or_garbled_sample_files_are_skipped_with_a_count(tmp_path, drive):
+    """One unreadable sample costs that sample (a warning names it and counts them), not the track."""
     write_gnss(tmp_path, drive, until_s=2.0)
+    whole = len(read_radiate_gnss_ins(tmp_path))
     sample = tmp_path / "GPS_IMU_Twist" / "002011.txt"  # the second sample, listed on line 3
     good = sample.read_text()
     sample.unlink()
-    with pytest.raises(SequenceError, match=r"002011\.txt: no such file, but it is listed on line 3 of .*"
-                                            r"GPS_IMU_Twist\.txt"):
-        read_radiate_gnss_ins(tmp_path)
+    with pytest.warns(GroundTruthWarning, match=r"1 of \d+ samples cannot be read and are skipped \(the first: .*"
+                                                r"002011\.txt: no such file, but it is listed on line 3 of"):
+        assert len(read_radiate_gnss_ins(tmp_path)) == whole - 1
     for text, match in [
         ("55.9,abc,117\n" + good.split("\n", 1)[1], r"002011\.txt, line 1: expected 3 comma-separated numbers "
                                                     r"\(latitude, longitude, altitude\), got '55\.9,abc,117'"),
         ("\n".join(good.splitlines()[:4] + ["0.1,0.2,0.3"] + good.splitlines()[5:]),
          r"002011\.txt, line 5: expected 4 comma-separated numbers \(the orientation quaternion"),
         ("\n".join(good.splitlines()[:2]), r"line 5: .* got nothing \(the file ends\)"),
+        ("", r"line 1: .* got nothing \(the file ends\)"),
         ("\n".join(["95.0,-3.2,117"] + good.splitlines()[1:]), r"line 1: latitude 95\.0, longitude -3\.2 are not"),
         ("\n".join(good.splitlines()[:4] + ["0,0,0,0"] + good.splitlines()[5:]), r"line 5: .* is not a rotation"),
+        ("\n".join(good.splitlines()[:4] + ["nan,0,0,1"] + good.splitlines()[5:]), r"line 5: expected 4"),
         ("\n".join(["nan,-3.2,117"] + good.splitlines()[1:]), r"line 1: expected 3 comma-separated numbers"),
     ]:
         sample.write_text(text)
-        with pytest.raises(SequenceError, match=match) as err:
-            read_radiate_gnss_ins(tmp_path)
-        assert "listed on line 3" in str(err.value)
+        with pytest.warns(GroundTruthWarning, match=match) as record:
+            track = read_radiate_gnss_ins(tmp_path)
+        assert len(track) == whole - 1 and "listed on line 3" in str(record[0].message)
+        assert np.all(np.isfinite(track.east_m)) and np.all(np.isfinite(track.heading_rad))
+    # most samples unreadable: the track is not used, and the error says why
+    for path in sorted((tmp_path / "GPS_IMU_Twist").glob("*.txt"))[: 3 * whole // 2]:
+        path.write_text("garbage\n")
+    with pytest.raises(SequenceError, match=r"GNSS/INS samples cannot be read, too many to use the track"):
+        read_radiate_gnss_ins(tmp_path)
 
 
 def test_bad_time_files(tmp_path, drive):
@@ -411,15 +427,21 @@ def test_bad_time_files(tmp_path, drive):
     (tmp_path / "GPS_IMU_Twist.txt").unlink()
     with pytest.raises(SequenceError, match=r"GPS_IMU_Twist\.txt: no such file"):
         read_radiate_gnss_ins(tmp_path)
-    # a sample going back in time under either reading of the fractions
+    # the clock stepping back once (a receiver re-sync): read on, the overlap dropped, a warning
+    whole = len(read_radiate_gnss_ins(_restore(tmp_path, lines)))
     backwards = lines[:6] + [lines[6].replace("Time: 1549986597.", "Time: 1549986596.")] + lines[7:]
     (tmp_path / "GPS_IMU_Twist.txt").write_text("\n".join(backwards) + "\n")
+    with pytest.warns(GroundTruthWarning, match=r"the clock steps back 0\.950 s at line 7 of GPS_IMU_Twist\.txt "
+                                               r"\(frame 2015\); the 1 sample\(s\) that repeat time already covered"):
+        track = read_radiate_gnss_ins(tmp_path)
+    # (line 7 re-lists the sample of line 6: dropping its stepped-back time loses no sample)
+    assert len(track) == whole and np.all(np.diff(track.times_us) > 0)
+    # going back again and again is a corrupt file, not a re-sync: the error names where
+    many = [ln.replace("Time: 1549986597.", "Time: 1549986596.") if k % 4 == 2 else ln for k, ln in enumerate(lines)]
+    (tmp_path / "GPS_IMU_Twist.txt").write_text("\n".join(many) + "\n")
     with pytest.raises(SequenceError) as err:
         read_radiate_gnss_ins(tmp_path)
-    msg = str(err.value)
-    # the reading that holds out longer (nanoseconds, to line 7) leads; the decimal one fails on line 3
-    assert "GPS_IMU_Twist.txt, line 7: frame 2015 at 1549986596.150734 s is before frame 2014" in msg
-    assert "read as unpadded nanoseconds" in msg and "read as decimals the times fail too, at line 3" in msg
+    assert "GPS_IMU_Twist.txt, line" in str(err.value) and "is before frame" in str(err.value)
     (tmp_path / "GPS_IMU_Twist.txt").write_text("\n".join(lines[:2]) + "\n")  # one sample, twice
     with pytest.raises(SequenceError, match="lists 1 distinct sample time"):
         read_radiate_gnss_ins(tmp_path)
@@ -516,3 +538,32 @@ def test_real_clock_offset_from_the_radars_own_odometry(real_track, edinburgh):
     # measured: +1.644 s (yaw alone 1.63 s, distance alone 1.70 s), 272 pairs; README: ≈ +1.7 s
     assert found.offset_s == pytest.approx(1.7, abs=0.1)
     assert found.num_pairs > 250 and found.second_best_ratio > 2.0
+
+
+# ---------------------------------------------------------------- heading offset followed in time
+
+
+def test_a_stepping_ins_offset_is_followed(drive):
+    """The INS re-aligns mid-drive (−7.1° → −1.0° at 30 s, as on the full shared drive): the offset
+    followed in time recovers both levels, so the reference heading stays on the vehicle's axis,
+    where one constant leaves several degrees of error on one side of the step."""
+    idx = sample_indices(drive)
+    t = drive["t"][idx]
+    step = np.where(t < 30.0, INS_OFFSET_RAD, math.radians(-1.0))
+    start = 1549986597_000_000
+    track = GnssInsTrack(times_us=start + np.round(t * 1e6).astype(np.int64), east_m=drive["east"][idx],
+                         north_m=drive["north"][idx], up_m=np.zeros(len(idx)),
+                         heading_rad=wrap_angle(drive["yaw"][idx] + step))
+    followed = heading_offset_track_rad(track)
+    away = np.abs(t - 30.0) > 6.0
+    np.testing.assert_allclose(np.degrees(followed[away]), np.degrees(step[away]), atol=0.2)
+    # radar times every 0.25 s: the vehicle's heading, not the INS's, with the followed offset
+    radar_us = start + np.arange(4, 236) * 250_000
+    truth_yaw = np.interp((radar_us - start) / 1e6, drive["t"], drive["yaw"])
+    for offset, worst in ((followed, 0.3), (float(np.median(followed)), 2.0)):
+        poses = poses_at(track, radar_us, 0.0, offset, max_sample_gap_s=1.0)
+        yaw = -np.arctan2(poses[:, 1, 0], poses[:, 0, 0])  # Oxford yaw is clockwise: back to ENU
+        err = np.degrees(wrap_angle(yaw - (truth_yaw - truth_yaw[0])))
+        assert (np.abs(err[np.abs((radar_us - start) / 1e6 - 30.0) > 6.0]).max() < 0.3) == (worst < 1.0)
+    with pytest.raises(ConfigError, match="one offset or one per track sample"):
+        poses_at(track, radar_us, 0.0, followed[:-1])

@@ -57,12 +57,13 @@ right turn is a positive yaw.
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import ConfigError, SequenceError
+from ..errors import ConfigError, GroundTruthWarning, SequenceError
 from ..se2 import invert, relative_from_absolute, se2_batch, wrap_angle
 from .radiate import parse_frame_times
 
@@ -228,16 +229,28 @@ def read_radiate_gnss_ins(root) -> GnssInsTrack | None:
         ) from None
     except (OSError, UnicodeDecodeError) as exc:
         raise SequenceError(f"{times_file}: cannot read the GNSS/INS time file ({exc})") from None
-    listing = parse_frame_times(text, str(times_file), strictly_increasing=False)
+    listing = parse_frame_times(text, str(times_file), strictly_increasing=False, steps_back=True)
     stamps = np.array(listing.times_us, dtype=np.int64)
-    first = np.flatnonzero(np.r_[True, np.diff(stamps) > 0])  # a repeated time is the same sample
+    first, notes = _forward_samples(stamps, listing, times_file)
     if len(first) < 2:
         raise SequenceError(f"{times_file}: lists {len(first)} distinct sample time(s); a track needs two or more")
-    samples = np.array([
-        _read_sample(folder / f"{listing.frames[k]:06d}.txt",
-                     f"it is listed on line {listing.lines[k]} of {times_file}")
-        for k in first.tolist()
-    ])
+    kept, samples, bad = [], [], []
+    for k in first.tolist():
+        try:
+            samples.append(_read_sample(folder / f"{listing.frames[k]:06d}.txt",
+                                        f"it is listed on line {listing.lines[k]} of {times_file}"))
+            kept.append(k)
+        except SequenceError as exc:  # one unreadable sample costs that sample, not the track
+            bad.append(str(exc))
+    if bad:
+        if len(kept) < max(2, MIN_READABLE_SHARE * len(first)):
+            raise SequenceError(f"{folder}: {len(bad)} of {len(first)} GNSS/INS samples cannot be read, too many "
+                                f"to use the track; the first: {bad[0]}")
+        notes.append(f"{len(bad)} of {len(first)} samples cannot be read and are skipped (the first: {bad[0]})")
+    if notes:
+        warnings.warn(f"{folder}: " + "; ".join(notes), GroundTruthWarning, stacklevel=2)
+    first = np.array(kept, dtype=np.int64)
+    samples = np.array(samples)
     origin = (float(samples[0, 0]), float(samples[0, 1]), float(samples[0, 2]))
     east, north, up = enu_from_geodetic(samples[:, 0], samples[:, 1], samples[:, 2], origin)
     return GnssInsTrack(
@@ -249,6 +262,28 @@ def read_radiate_gnss_ins(root) -> GnssInsTrack | None:
         origin_deg_m=origin,
         source=str(folder),
     )
+
+
+MIN_READABLE_SHARE = 0.5  # below this share of readable samples a track is not used at all
+
+
+def _forward_samples(stamps: np.ndarray, listing, times_file) -> tuple[np.ndarray, list[str]]:
+    """(indices of the listings that are samples, notes): a listing is a new sample when its time is
+    after every earlier one. A repeated time is the same sample listed again; a clock that steps
+    back (a receiver re-sync: −0.36 s once on the full shared drive) repeats time already covered,
+    so the samples until the clock is past the last kept time again are dropped (the first word
+    on a time is kept), and each step back is noted once: where and by how much."""
+    latest = np.maximum.accumulate(stamps)
+    is_new = np.r_[True, stamps[1:] > latest[:-1]]
+    notes = []
+    for k in np.flatnonzero(np.r_[False, stamps[1:] < stamps[:-1]]).tolist():
+        resumed = np.flatnonzero(is_new[k:])
+        dropped = int(resumed[0]) if len(resumed) else len(stamps) - k
+        distinct = len(np.unique(stamps[k:k + dropped]))
+        notes.append(f"the clock steps back {(latest[k - 1] - stamps[k]) / 1e6:.3f} s at line {listing.lines[k]} of "
+                     f"{times_file.name} (frame {listing.frames[k]}); the {distinct} sample(s) that repeat time "
+                     "already covered are dropped")
+    return np.flatnonzero(is_new), notes
 
 
 # ---------------------------------------------------------------------------------- heading
@@ -318,6 +353,43 @@ def estimate_heading_offset_rad(
     return float(wrap_angle(centre + q50)), float(q75 - q25), n
 
 
+TRACK_OFFSET_HALF_WINDOW_S = 5.0  # the running median's half window (shared drive's data README)
+
+
+def heading_offset_track_rad(track: GnssInsTrack, min_speed_mps: float = 3.0,
+                             half_window_s: float = TRACK_OFFSET_HALF_WINDOW_S) -> np.ndarray:
+    """float64[M]: the INS heading's offset from the GNSS track direction at each sample, followed
+    in time: the median of ``wrap(heading − track direction)`` over the samples within
+    ``± half_window_s`` that move faster than ``min_speed_mps`` (direction over ±0.25 s),
+    interpolated in time across stretches without such samples (held at the ends).
+
+    The INS re-aligns while driving: on the shared RADIATE drive the offset is 6–8.5° for most of
+    the stretch, but elsewhere on the same drive it steps to ~1° for several seconds; one constant
+    (`estimate_heading_offset_rad`) leaves up to 6° of reference heading error there. A car does
+    not crab, so the track direction is the vehicle's axis wherever it moves.
+
+    Raises:
+        SequenceError: fewer than 20 samples move faster than ``min_speed_mps``.
+    """
+    k = _kinematics(track)
+    moving = np.flatnonzero(k["ok"] & (k["speed_mps"] > min_speed_mps))
+    if len(moving) < 20:
+        raise SequenceError(
+            f"{track.source or 'GNSS/INS track'}: only {len(moving)} samples move faster than {min_speed_mps} m/s "
+            "(need 20) to follow the INS heading's offset from the track direction; use a longer stretch "
+            "of the drive, or give the offset (--gt-heading-offset-deg)"
+        )
+    t = track.seconds_since_start()
+    diff = wrap_angle(track.heading_rad[moving] - k["direction_rad"][moving])
+    centre = float(np.arctan2(np.mean(np.sin(diff)), np.mean(np.cos(diff))))
+    around = wrap_angle(diff - centre)  # a spread around ±π does not split in two
+    tm = t[moving]
+    lo = np.searchsorted(tm, tm - half_window_s, side="left")
+    hi = np.searchsorted(tm, tm + half_window_s, side="right")
+    med = np.array([np.median(around[a:b]) for a, b in zip(lo.tolist(), hi.tolist())])
+    return wrap_angle(centre + np.interp(t, tm, med))
+
+
 # ---------------------------------------------------------------------------------- poses
 
 
@@ -328,9 +400,11 @@ def _check_times(times_us, what: str) -> np.ndarray:
     return t.astype(np.int64)
 
 
-def _world_xyh(track: GnssInsTrack, times_us, clock_offset_s: float, heading_offset_rad: float,
+def _world_xyh(track: GnssInsTrack, times_us, clock_offset_s: float, heading_offset_rad,
                max_sample_gap_s: float) -> np.ndarray:
-    """float64[N, 3] (east m, north m, corrected ENU heading rad) at ``times_us + clock_offset_s``.
+    """float64[N, 3] (east m, north m, corrected ENU heading rad) at ``times_us + clock_offset_s``;
+    ``heading_offset_rad`` one offset or float64[M], one per track sample
+    (`heading_offset_track_rad`).
 
     Linear between the two samples around each time; NaN rows outside the track or where those
     two samples are more than ``max_sample_gap_s`` apart.
@@ -343,7 +417,11 @@ def _world_xyh(track: GnssInsTrack, times_us, clock_offset_s: float, heading_off
     span = t[i + 1] - t[i]
     ok = (q_s >= t[0]) & (q_s <= t[-1]) & (span <= max_sample_gap_s)
     w = np.clip((q_s - t[i]) / span, 0.0, 1.0)
-    heading = np.unwrap(track.heading_rad) - float(heading_offset_rad)
+    offset = np.asarray(heading_offset_rad, dtype=np.float64)
+    if offset.ndim and offset.shape != track.heading_rad.shape:
+        raise ConfigError(f"heading_offset_rad: one offset or one per track sample ({len(track)}), "
+                          f"got shape {offset.shape}")
+    heading = np.unwrap(track.heading_rad - offset)  # after the offset: a per-sample one changes the steps
     out = np.stack([
         (1 - w) * v[i] + w * v[i + 1] for v in (track.east_m, track.north_m, heading)
     ], axis=-1)
@@ -369,8 +447,9 @@ def poses_at(
         track: the GNSS/INS track.
         times_us: int[N] radar times (UNIX µs on the radar's clock).
         clock_offset_s: the reference for radar time t is the track at ``t + clock_offset_s``.
-        heading_offset_rad: the INS heading's offset from the vehicle's axis
-            (`estimate_heading_offset_rad`); the heading used is ``heading − heading_offset_rad``.
+        heading_offset_rad: the INS heading's offset from the vehicle's axis, one for the drive
+            (`estimate_heading_offset_rad`) or one per track sample (`heading_offset_track_rad`);
+            the heading used is ``heading − heading_offset_rad``.
         max_sample_gap_s: no pose between samples further apart than this.
 
     Returns:

@@ -181,7 +181,18 @@ def _disorder(entries, times_us: list[int], k: int, strictly: bool) -> str:
     )
 
 
-def parse_frame_times(text: str, source: str, *, strictly_increasing: bool = True) -> FrameTimes:
+def _steps_back(times_us: list[int]) -> int:
+    """How many times are earlier than the time before them."""
+    return sum(b < a for a, b in zip(times_us, times_us[1:]))
+
+
+# with steps back allowed, a reading may go back at most this share of its steps: a receiver re-sync
+# is one step in thousands, while unpadded nanoseconds read as decimals go back about once a second
+MAX_STEP_BACK_SHARE = 0.01
+
+
+def parse_frame_times(text: str, source: str, *, strictly_increasing: bool = True,
+                      steps_back: bool = False) -> FrameTimes:
     """Read the ``Frame: N Time: S.F`` lines of a RADIATE time file (radar or GNSS/INS).
 
     The fraction F is read both as a decimal fraction of a second and as whole nanoseconds
@@ -194,6 +205,9 @@ def parse_frame_times(text: str, source: str, *, strictly_increasing: bool = Tru
         text: the file's text; blank lines are ignored.
         source: the file's name, for messages.
         strictly_increasing: refuse equal times of neighbouring frames.
+        steps_back: a clock that steps back now and then (a GNSS receiver's re-sync) is read on: the
+            reading with the fewest steps back is taken, unless more than one and more than
+            `MAX_STEP_BACK_SHARE` of its steps go back; the caller decides what to do with the overlap.
 
     Raises:
         SequenceError: naming ``source`` and the line, on a garbled line, a repeated frame
@@ -221,6 +235,11 @@ def parse_frame_times(text: str, source: str, *, strictly_increasing: bool = Tru
         readings = {DECIMAL: decimal, NANOSECONDS: nanos}
     disorder = {name: _first_disorder(us, strictly_increasing) for name, us in readings.items()}
     fits = [name for name, k in disorder.items() if k is None]
+    if steps_back and not fits:
+        back = {name: _steps_back(us) for name, us in readings.items()}
+        fewest = min(back.values())
+        if fewest <= max(1.0, MAX_STEP_BACK_SHARE * (len(entries) - 1)):
+            fits = [name for name in readings if back[name] == fewest]
     if not fits:
         # lead with the reading that holds out longer: the file more likely means that one
         order = sorted(readings, key=lambda r: -disorder[r])  # stable: decimals first on a tie
