@@ -66,7 +66,7 @@ from torch import nn
 
 from radar_odom.profiles import GridProfile
 
-from .correlation import PolarRotator, rotate_images, rotation_grids
+from .correlation import polar_rotator, rotate_images, rotation_grids
 from .dft import FactoredSpectrum, LowResImage, WindowedInverse
 from .softargmax import candidate_weights, parabolic_peak, peak_window, pose_window, windowed_weights
 
@@ -194,8 +194,8 @@ class CoarseYawSelector(nn.Module):
         yaws = torch.tensor(profile.rotations_rad, dtype=torch.float64)[idx]
         self.register_buffer("yaws", yaws.to(torch.float32), persistent=False)
         self.rotator = (None if settings.rotation == "bilinear" else
-                        PolarRotator(self.low_px, profile.rotation_step_rad, (self.low_px - 1) / 2, centre,
-                                     kernel=profile.rotation_kernel))
+                        polar_rotator(self.low_px, profile.rotation_step_rad, (self.low_px - 1) / 2, centre,
+                                      profile.rotation_kernel))
         self.image = LowResImage(self.low_px)
         self.spectrum = FactoredSpectrum(self.low_px)
         self.inverse = WindowedInverse(self.low_px, max(1, math.ceil(profile.translation_cells / f)))
@@ -255,8 +255,8 @@ class FastStreamStep(nn.Module):
         # features are zero beyond the support disc (model.support_disc): rotate only that
         disc_px = (p.width_px - 1) / 2 - p.translation_cells
         self.rotator = (None if self.settings.rotation == "bilinear" else
-                        PolarRotator(p.width_px, p.rotation_step_rad, disc_px, p.num_rotations // 2,
-                                     kernel=p.rotation_kernel))
+                        polar_rotator(p.width_px, p.rotation_step_rad, disc_px, p.num_rotations // 2,
+                                      p.rotation_kernel))
         self.exact_identity = p.rotation_identity == "exact"
         if self.rotator is None and not self.exact_identity:
             raise ValueError(f"profile {p.name!r} scores yaw 0 resampled (rotation_identity="
