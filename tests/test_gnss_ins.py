@@ -49,6 +49,10 @@ def _cumulative(v: np.ndarray) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def drive():
+    return make_drive()
+
+
+def make_drive():
     """Every ms for 60 s: east, north (m) and the vehicle's ENU yaw (rad, unwrapped; the track
     direction: no crab). Starts heading north, speeds up to 6–10 m/s, turns right 90° at 10 s,
     left 60° at 25 s, right 45° at 38 s, left 90° at 50 s."""

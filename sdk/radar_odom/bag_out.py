@@ -15,6 +15,8 @@ message holds ``odom_frame → base_frame`` at the same stamp (the first sweep: 
 """
 from __future__ import annotations
 
+import os
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -39,7 +41,8 @@ def _rosbags_writer():
 
 def write_odometry_bag(path, timestamps_us, poses, estimates, stamps_ns=None, *, odom_topic: str = ODOM_TOPIC,
                        tf_topic: str = TF_TOPIC, odom_frame: str = ODOM_FRAME, base_frame: str = BASE_FRAME) -> Path:
-    """Write a run's odometry to the ROS 2 MCAP bag ``path`` (a new folder); returns it.
+    """Write a run's odometry to the ROS 2 MCAP bag ``path`` (a new folder, or, for a name ending in
+    ``.mcap``, that one MCAP file); returns it.
 
     Args:
         timestamps_us: int64[N] the sweeps' first-azimuth times (`RadarOdometer.trajectory`).
@@ -54,7 +57,18 @@ def write_odometry_bag(path, timestamps_us, poses, estimates, stamps_ns=None, *,
     Writer, StoragePlugin, store = _rosbags_writer()
     path = Path(path)
     if path.exists():
-        raise OutputError(f"{path}: exists; --bag-out writes a new ROS 2 bag folder, give a new path")
+        raise OutputError(f"{path}: exists; --bag-out writes a new ROS 2 bag, give a new path")
+    if path.suffix == ".mcap":
+        # a name ending in .mcap asks for that one file, not a folder of that name around another
+        # file: the bag is written as a folder beside it, then its MCAP file moved to the name
+        folder = path.with_name(f".{path.name}.{os.getpid()}.bag")
+        try:
+            write_odometry_bag(folder, timestamps_us, poses, estimates, stamps_ns, odom_topic=odom_topic,
+                               tf_topic=tf_topic, odom_frame=odom_frame, base_frame=base_frame)
+            (folder / f"{folder.name}.mcap").replace(path)
+        finally:
+            shutil.rmtree(folder, ignore_errors=True)
+        return path
     ts_us = np.asarray(timestamps_us, dtype=np.int64)
     n = len(ts_us)
     if len(estimates) != n - 1 or len(poses) != n:

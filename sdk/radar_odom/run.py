@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from ._progress import progress
-from .errors import ConfigError, OutputError, RunAborted, ScanFormatError, SequenceError, StreamError
+from .errors import ConfigError, OutputError, RadarOdomError, RunAborted, ScanFormatError, SequenceError, StreamError
 from .odometer import Estimate, RadarOdometer
 from .pipeline import DEFAULT_PREFETCH, NAME_TIME_TOLERANCE_S, Throughput, iter_estimates, throughput  # noqa: F401
 
@@ -73,6 +73,7 @@ class RunResult:
     throughput: Throughput | None = None  # the pace: sweeps/s, stage medians (`pipeline.throughput`)
     reference: dict | None = None  # GNSS/INS reference: clock_offset_s, heading_offset_deg, how each was found
     reference_note: str = ""  # one line saying which reference the metrics use (GNSS/INS: its calibration)
+    problems: list = field(default_factory=list)  # stages after the odometry that failed (plot, bag, metrics): why
 
     @property
     def complete(self) -> bool:
@@ -279,8 +280,8 @@ def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float | No
         raise ConfigError(f"on_error must be one of {ON_ERROR}, got {on_error!r}")
     out_dir = prepare_output_dir(out_dir)
     seq = open_recording(seq_dir, topic, bag_geometry)
-    if bag_out is not None and Path(bag_out).exists():  # before the run, not after it
-        raise OutputError(f"{bag_out}: exists; --bag-out writes a new ROS 2 bag folder, give a new path")
+    if bag_out is not None:  # what can be checked before the run, not after it
+        check_bag_out(bag_out)
     extra = {} if deskew is None else {"deskew": bool(deskew)}
     odo = model if isinstance(model, RadarOdometer) else RadarOdometer(
         model, threads=threads, max_gap_s=max_gap_s, motion_prior=motion_prior, **extra)
@@ -296,7 +297,10 @@ def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float | No
                                 stream.throughput(), plot, title, complete,
                                 reference_offsets=(gt_time_offset, gt_heading_offset_deg))
         if bag_out is not None:
-            result.files["bag"] = _write_bag(bag_out, seq, result)
+            try:
+                result.files["bag"] = _write_bag(bag_out, seq, result)
+            except (RadarOdomError, OSError) as exc:  # the estimates are written: say why, keep them
+                result.problems.append(f"--bag-out {bag_out} not written: {exc}")
         return result
 
     def aborted(exc, why: str = "") -> RunAborted:
@@ -340,6 +344,24 @@ def open_recording(source, topic: str | None = None, bag_geometry: dict | None =
         raise ConfigError("the bag options (range resolution, sweep period, stamp, ...) apply to ROS bags only; "
                           f"{source} is not a bag")
     return read_sequence(source)
+
+
+def check_bag_out(path) -> None:
+    """`OutputError` (or `MissingExtraError`) now for a ``--bag-out`` path that could not be written
+    after the odometry: one that exists, a folder that is missing or read-only, no rosbags."""
+    import os
+
+    from .bag_out import _rosbags_writer
+
+    path = Path(path)
+    if path.exists():
+        raise OutputError(f"{path}: exists; --bag-out writes a new ROS 2 bag, give a new path")
+    parent = path.resolve().parent
+    if not parent.is_dir():
+        raise OutputError(f"{path}: folder {parent} does not exist; create it or give another --bag-out path")
+    if not os.access(parent, os.W_OK):
+        raise OutputError(f"{path}: folder {parent} is not writable; give another --bag-out path")
+    _rosbags_writer()  # MissingExtraError with the pip line, before the run
 
 
 def _write_bag(path, seq, result: RunResult) -> Path:
@@ -453,9 +475,12 @@ def _write_outputs(odo, seq, seq_dir, out_dir, estimates, prev_ts, skipped, pace
     if gt is not None and complete and n == len(seq) and len(gt) == n:
         result.gt_poses = gt
         p = odo.info.profile
-        result.metrics, result.step_errors = evaluate(
-            gt, traj.poses, estimates, covariance_jitter(p.resolution_m, p.rotation_step_rad),
-            gt_relative=seq.gt_relative)
+        try:
+            result.metrics, result.step_errors = evaluate(
+                gt, traj.poses, estimates, covariance_jitter(p.resolution_m, p.rotation_step_rad),
+                gt_relative=seq.gt_relative)
+        except (ValueError, ArithmeticError) as exc:  # e.g. a ground truth of 1e308 m: no metrics, say why
+            result.problems.append(f"metrics not computed: {type(exc).__name__}: {exc}")
     if gt is not None and n == len(seq) and len(gt) == n:
         # one ground-truth pose per estimated pose, stamped like the estimate so that evo pairs
         # them by time (TUM) or by line (KITTI); unknown past the first pair without ground truth
@@ -465,8 +490,11 @@ def _write_outputs(odo, seq, seq_dir, out_dir, estimates, prev_ts, skipped, pace
         if known.all():
             result.files["gt_kitti"] = write_kitti(out_dir / "ground_truth.kitti", gt)
     if plot:
-        result.files["plot"] = plot_trajectory(
-            out_dir / "trajectory.png", traj.poses, result.gt_poses, traj.timestamps_us,
-            title or f"{Path(seq_dir).name} — {Path(str(odo.path)).name}",
-        )
+        try:
+            result.files["plot"] = plot_trajectory(
+                out_dir / "trajectory.png", traj.poses, result.gt_poses, traj.timestamps_us,
+                title or f"{Path(seq_dir).name} — {Path(str(odo.path)).name}",
+            )
+        except (RadarOdomError, OSError, ValueError) as exc:  # the trajectory files are written already
+            result.problems.append(f"plot not drawn: {exc}")
     return result

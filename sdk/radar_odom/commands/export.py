@@ -17,7 +17,10 @@ def register(subparsers) -> None:
     )
     p.add_argument("checkpoint", help="checkpoint written by `radar-odom train` (.pt), or the name of a "
                                       "shipped one (cart-0.8, cart-0.4): the weights of the pretrained models")
-    p.add_argument("-o", "--output", default=None, help="ONNX file to write (default: CHECKPOINT with .onnx)")
+    p.add_argument("-o", "--output", default=None,
+                   help="ONNX file to write (default: the checkpoint's name, or NAME for a shipped one, with the "
+                        "search and form appended where they are not its default, e.g. cart-0.4-decoupled.onnx)")
+    p.add_argument("--force", action="store_true", help="overwrite the output file if it exists")
     p.add_argument("--form", choices=("stream", "pair", "sequence"), default=None,
                    help="stream: (sweep, previous state) -> (pose, covariance, state), masks each sweep once; "
                         "pair: (previous sweep, sweep) -> (pose, covariance), for evaluation; sequence: T "
@@ -53,7 +56,7 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from pathlib import Path
 
-    from ..errors import MissingExtraError
+    from ..errors import MissingExtraError, OutputError
 
     try:
         from radar_odom_export.checkpoint import resolve_checkpoint
@@ -61,20 +64,25 @@ def run(args) -> int:
     except ImportError as exc:  # torch / onnx missing: say which extra to install
         raise MissingExtraError(getattr(exc, "name", None) or "torch", "export") from exc
     ckpt = resolve_checkpoint(args.checkpoint)
-    # a shipped name writes NAME.onnx in the working directory, never into the package
-    if args.output:
-        out = Path(args.output)
-    elif Path(args.checkpoint).is_file():
-        out = Path(args.checkpoint).with_suffix(".onnx")
-    else:
-        out = Path(f"{ckpt.stem}.onnx")
     shipped = None if Path(args.checkpoint).is_file() else shipped_export(ckpt.stem)
     form, settings = args.form, None
     if shipped is not None and args.search in (None, shipped["search"]) and args.form in (None, shipped["form"]):
         # reproduce the shipped model: its search with its settings, its form
         search, form, settings = shipped["search"], shipped["form"], shipped["settings"]
+        tag = ""
     else:
         search = args.search or ("fast" if args.form == "sequence" else "exhaustive")
+        plain = shipped is None and search == "exhaustive" and form in (None, "stream")
+        tag = "" if plain else f"-{search}" + (f"-{form}" if form not in (None, "stream") else "")
+    # the default name says the search and form (two exports never share it); a shipped name writes
+    # NAME.onnx in the working directory, never into the package
+    if args.output:
+        out = Path(args.output)
+    else:
+        stem = Path(args.checkpoint).with_suffix("") if Path(args.checkpoint).is_file() else Path(ckpt.stem)
+        out = stem.with_name(f"{stem.name}{tag}.onnx")
+    if out.exists() and not args.force:
+        raise OutputError(f"{out} exists; pass --force to overwrite it, or -o to write elsewhere")
     common = dict(form=form, opset=args.opset, verify=not args.no_verify, search=search,
                   exporter=args.exporter)
     if settings is not None:

@@ -43,10 +43,13 @@ def register(subparsers) -> None:
     p.add_argument("--gt-time-offset", default="auto", metavar="auto|SECONDS",
                    help="GNSS/INS reference (RADIATE): its clock minus the radar's, in s (the reference for "
                         "radar time t is the sample at t + offset); 'auto' (default) estimates it by aligning "
-                        "the odometry's yaw rate and speed with the reference, and prints it")
+                        "the odometry's yaw rate and speed with the reference, prints it with its cost and "
+                        "next-best ratio, and leaves the reference unused where that is ambiguous")
     p.add_argument("--gt-heading-offset-deg", default="auto", metavar="auto|DEGREES",
                    help="GNSS/INS reference: the INS heading minus the vehicle's direction of travel, degrees "
-                        "counter-clockwise; 'auto' (default) measures it on straight stretches of the track")
+                        "counter-clockwise, one value for the drive; 'auto' (default) follows it in time (a ±5 s "
+                        "running median of the heading's offset from the GNSS track over moving samples: the INS "
+                        "re-aligns while driving) and prints its range")
     p.add_argument("--on-error", choices=("skip", "stop"), default="skip",
                    help="a sweep that cannot be read (corrupt file, garbage timestamps): 'skip' reports it, "
                         "bridges the trajectory across it (flagged degenerate) and exits with status 3; "
@@ -148,6 +151,8 @@ def run(args) -> int:
               f"{listed}{more}")
     for kind, path in result.files.items():
         print(f"{kind}: {path}")
+    for problem in result.problems:  # stages after the odometry that failed; the outputs above are written
+        print(f"radar-odom run: warning: {problem}", file=sys.stderr)
     if result.throughput is not None:
         mode = "no pipeline" if args.no_pipeline else f"pipelined, {DEFAULT_PREFETCH} sweeps ahead"
         print(f"pace ({mode}): {result.throughput.format()}")

@@ -1,0 +1,120 @@
+"""A run never loses its work: every stage after the odometry (the GNSS/INS reference, metrics, plot,
+bag) fails into a warning with the reason, the estimates and trajectories are written, exit 0; the
+output paths that can be checked are checked before the odometry. And the CLI frictions of the
+front door: export names its output by search and refuses to overwrite, --bag-out NAME.mcap is that
+file."""
+import importlib.util
+from types import SimpleNamespace
+
+import pytest
+
+from radar_odom.cli import main
+
+from test_radiate import write_radiate
+
+
+@pytest.fixture
+def radiate_with_gnss(tmp_path, drive):
+    """Five RADIATE sweeps (random texture) and a GNSS/INS folder written from the known drive."""
+    from test_gnss_ins import write_gnss
+
+    write_radiate(tmp_path)
+    write_gnss(tmp_path, drive, until_s=4.0)
+    return tmp_path
+
+
+@pytest.fixture(scope="module")
+def drive():
+    from test_gnss_ins import make_drive
+
+    return make_drive()
+
+
+def _run(seq, model, out, *extra):
+    return main(["run", str(seq), "--model", str(model), "-o", str(out), "--no-plot", "--no-pipeline", *extra])
+
+
+@pytest.mark.parametrize("damage", ["garbage time file", "empty time file", "no sample files", "nan samples"])
+def test_a_broken_gnss_ins_track_costs_the_metrics_not_the_run(radiate_with_gnss, tiny_model, tmp_path, damage,
+                                                               capsys):
+    seq = radiate_with_gnss
+    times = seq / "GPS_IMU_Twist.txt"
+    samples = sorted((seq / "GPS_IMU_Twist").glob("*.txt"))
+    if damage == "garbage time file":
+        times.write_text("this is not a RADIATE time file\n")
+    elif damage == "empty time file":
+        times.write_text("")
+    elif damage == "no sample files":
+        for path in samples:
+            path.unlink()
+    else:
+        for path in samples:
+            path.write_text("nan,nan,nan\n")
+    out = tmp_path / "out"
+    # the tiny model's grid is smaller than a RADIATE sweep: it runs on any sweep that covers it
+    assert _run(seq, tiny_model, out) == 0
+    text = capsys.readouterr()
+    assert "reference: GNSS/INS present but not used" in text.out
+    for name in ("trajectory.tum", "trajectory.kitti", "estimates.csv"):
+        assert (out / name).is_file()
+    assert len((out / "trajectory.tum").read_text().splitlines()) == 5
+
+
+def test_an_unwritable_bag_out_is_refused_before_the_odometry(radiate_with_gnss, tiny_model, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert _run(radiate_with_gnss, tiny_model, out, "--bag-out", str(tmp_path / "missing" / "odom")) == 1
+    assert "does not exist" in capsys.readouterr().err
+    assert not (out / "trajectory.tum").exists()  # refused before any sweep was matched
+
+
+def test_a_bag_that_fails_after_the_odometry_is_a_warning(radiate_with_gnss, tiny_model, tmp_path, capsys,
+                                                          monkeypatch):
+    if importlib.util.find_spec("rosbags") is None:
+        pytest.skip("needs rosbags (the ros or dev extra)")
+    import radar_odom.run as run_mod
+    from radar_odom.errors import OutputError
+
+    def full_disk(*args, **kwargs):
+        raise OutputError("odom: cannot write the bag (No space left on device)")
+
+    monkeypatch.setattr(run_mod, "_write_bag", full_disk)
+    out = tmp_path / "out"
+    assert _run(radiate_with_gnss, tiny_model, out, "--bag-out", str(tmp_path / "odom")) == 0
+    err = capsys.readouterr().err
+    assert "warning: --bag-out" in err and "No space left on device" in err
+    assert (out / "trajectory.tum").is_file()
+
+
+# ------------------------------------------------------------------ export's output names
+@pytest.fixture
+def recorded_exports(monkeypatch):
+    pytest.importorskip("torch")
+    from radar_odom_export import onnx_export
+
+    asked = []
+    monkeypatch.setattr(onnx_export, "export_checkpoint",
+                        lambda ckpt, out, **kw: asked.append((str(out), kw)) or SimpleNamespace(summary=lambda: "ok"))
+    return asked
+
+
+@pytest.mark.torch
+def test_export_names_its_output_by_search_and_form(recorded_exports, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    ckpt = tmp_path / "m.pt"
+    ckpt.write_bytes(b"")
+    for argv in (["cart-0.4"], ["cart-0.4", "--search", "decoupled"], ["cart-0.4", "--search", "exhaustive"],
+                 [str(ckpt)], [str(ckpt), "--search", "fast"], [str(ckpt), "--form", "sequence"]):
+        assert main(["export", *argv]) == 0
+    names = [out.replace(str(tmp_path) + "/", "") for out, _ in recorded_exports]
+    assert names == ["cart-0.4.onnx", "cart-0.4-decoupled.onnx", "cart-0.4-exhaustive.onnx", "m.onnx",
+                     "m-fast.onnx", "m-fast-sequence.onnx"]
+
+
+@pytest.mark.torch
+def test_export_refuses_to_overwrite_without_force(recorded_exports, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "cart-0.4.onnx").write_bytes(b"a model a user made earlier")
+    assert main(["export", "cart-0.4"]) == 1
+    assert "cart-0.4.onnx exists; pass --force" in capsys.readouterr().err
+    assert not recorded_exports
+    assert main(["export", "cart-0.4", "--force"]) == 0 and len(recorded_exports) == 1
