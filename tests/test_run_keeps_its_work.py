@@ -118,3 +118,40 @@ def test_export_refuses_to_overwrite_without_force(recorded_exports, tmp_path, m
     assert "cart-0.4.onnx exists; pass --force" in capsys.readouterr().err
     assert not recorded_exports
     assert main(["export", "cart-0.4", "--force"]) == 0 and len(recorded_exports) == 1
+
+
+# ------------------------------------------------------------------ the other front-door frictions
+def test_topic_on_a_recording_folder_says_it_is_not_a_bag(radiate_with_gnss, tiny_model, tmp_path, capsys):
+    assert _run(radiate_with_gnss, tiny_model, tmp_path / "out", "--topic", "/Navtech/Polar") == 1
+    err = capsys.readouterr().err
+    assert "--topic /Navtech/Polar applies to ROS bags" in err and "reindex" not in err
+
+
+def test_a_missing_folder_names_every_layout(tmp_path, capsys):
+    assert main(["run", str(tmp_path / "nowhere")]) == 1
+    err = capsys.readouterr().err
+    for layout in ("radar/*.png", "polar/*.png", "Navtech_Polar/*.png", "ROS bag"):
+        assert layout in err, layout
+
+
+@pytest.mark.parametrize("command", ["profile", "simulate", "run", "export", "calibrate", "demo", "train"])
+def test_help_texts_carry_no_empty_defaults(command, capsys):
+    with pytest.raises(SystemExit):
+        main([command, "--help"])
+    text = capsys.readouterr().out
+    assert "(default: None)" not in text and "(default: [])" not in text and "(default: False)" not in text
+
+
+def test_defaults_match_what_ships(capsys):
+    import argparse
+
+    from radar_odom.commands import calibrate, demo
+
+    parser = argparse.ArgumentParser()
+    sub = parser.add_subparsers(dest="command")
+    calibrate.register(sub)
+    demo.register(sub)
+    assert parser.parse_args(["calibrate", "m.pt"]).search == "fast"  # the shipped models' search
+    with pytest.raises(SystemExit):
+        parser.parse_args(["demo", "--scenario", "motorway"])
+    assert "invalid choice: 'motorway'" in capsys.readouterr().err

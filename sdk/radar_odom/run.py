@@ -338,8 +338,11 @@ def open_recording(source, topic: str | None = None, bag_geometry: dict | None =
     from .formats import read_sequence
     from .formats.bag import is_bag, open_bag
 
-    if topic is not None or is_bag(source):
+    if is_bag(source):
         return open_bag(source, topic, **(bag_geometry or {}))
+    if topic is not None:
+        raise ConfigError(f"--topic {topic} applies to ROS bags (.bag, .mcap, .db3 or a ROS 2 bag folder with "
+                          f"metadata.yaml); {source} is not one — drop --topic to read it as a recording folder")
     if bag_geometry:
         raise ConfigError("the bag options (range resolution, sweep period, stamp, ...) apply to ROS bags only; "
                           f"{source} is not a bag")

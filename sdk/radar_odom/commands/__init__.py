@@ -13,3 +13,18 @@ COMMANDS: list[str] = [
     "simulate",
     "profile",
 ]
+
+
+def help_formatter():
+    """argparse's defaults-in-help formatter, without the noise of ``(default: None)`` /
+    ``(default: [])`` / ``(default: False)`` on options whose help says what their absence means."""
+    import argparse
+
+    class DefaultsHelp(argparse.ArgumentDefaultsHelpFormatter):
+        def _get_help_string(self, action):
+            quiet = action.default is None or action.default is False or action.default == []
+            if quiet or "%(default)" in (action.help or ""):
+                return action.help
+            return super()._get_help_string(action)
+
+    return DefaultsHelp

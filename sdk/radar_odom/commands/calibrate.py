@@ -40,7 +40,7 @@ def register(subparsers) -> None:
     p.add_argument("--covariance", choices=("fitted", "temperature"), default="fitted",
                    help="fitted: the temperature, then per-axis scale and floors by maximum likelihood; "
                         "temperature: beta_cov alone, the paper's (default: %(default)s)")
-    p.add_argument("--search", choices=("exhaustive", "fast"), default="exhaustive",
+    p.add_argument("--search", choices=("exhaustive", "fast"), default="fast",
                    help="the yaw search the model will be exported with (`radar-odom export --search`): the "
                         "per-axis fit uses its estimates (default: %(default)s)")
     p.add_argument("--real", action="append", default=None, metavar="SEQ",

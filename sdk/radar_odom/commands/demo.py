@@ -26,7 +26,8 @@ def register(subparsers) -> None:
         help=f"simulator seed (default {DEFAULT_SEED}: never used in training)",
     )
     p.add_argument(
-        "--scenario", default="urban", help="simulator scenario: urban, heavy_traffic, open or highway (default: urban)"
+        "--scenario", default="urban", choices=("urban", "heavy_traffic", "open", "highway"),
+        help="simulator scenario (default: urban)"
     )
     p.add_argument(
         "-o",

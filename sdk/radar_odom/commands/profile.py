@@ -1,7 +1,7 @@
 """``radar-odom profile``: CPU latency per grid resolution, per stage and per operator class."""
 from __future__ import annotations
 
-import argparse
+from . import help_formatter
 
 HELP = "CPU latency per grid resolution: per stage, per operator class, peak memory, numpy-FFT reference"
 PROFILE_NAMES = ("cart-0.8", "cart-0.4", "cart-0.2")  # radar_odom.latency.DEFAULT_PROFILES, kept light
@@ -19,7 +19,7 @@ def register(subparsers) -> None:
             "on the fly (needs torch, the export extra; weights do not change the time); without torch the "
             "default --profiles are the shipped models' only."
         ),
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=help_formatter(),
     )
     p.add_argument("--models", nargs="*", default=[], metavar="NAME|PATH",
                    help="shipped model names (radar_odom.pretrained_names()) or exported .onnx files")

@@ -1,7 +1,7 @@
 """``radar-odom simulate OUT --frames N --seed S [--scenario NAME]``: a synthetic drive on disk."""
 from __future__ import annotations
 
-import argparse
+from . import help_formatter
 
 HELP = "simulate a Navtech CTS350-X drive and write it in the Oxford Radar RobotCar layout"
 SCENARIO_NAMES = ("urban", "heavy_traffic", "open", "highway")  # radar_odom.sim.SCENARIOS, kept light
@@ -16,7 +16,7 @@ def register(subparsers) -> None:
             "(255 where the power comes from the static world). The same seed and scenario give "
             "byte-identical files."
         ),
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=help_formatter(),
     )
     p.add_argument("out", metavar="OUT", help="sequence folder to write (created)")
     p.add_argument("--frames", type=int, default=100, help="number of sweeps (4 Hz)")

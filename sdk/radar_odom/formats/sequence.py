@@ -214,7 +214,9 @@ def read_sequence(
     """
     root = Path(seq_dir)
     if not root.is_dir():
-        raise SequenceError(f"{root}: not a folder; give a recording folder holding radar/ or polar/")
+        raise SequenceError(f"{root}: not a folder; give a recording folder holding radar/*.png (Oxford, Boreas), "
+                            "polar/*.png or polar_oxford_form/*.png (MulRan) or Navtech_Polar/*.png (RADIATE), or a "
+                            "ROS bag (.bag, .mcap, .db3 or a ROS 2 bag folder) with --topic")
     if format is None:
         fmt, folder = _detect(root)
     elif format in FORMATS:
