@@ -155,3 +155,19 @@ def test_defaults_match_what_ships(capsys):
     with pytest.raises(SystemExit):
         parser.parse_args(["demo", "--scenario", "motorway"])
     assert "invalid choice: 'motorway'" in capsys.readouterr().err
+
+
+def test_progress_written_to_a_log_is_a_few_whole_lines(capsys):
+    """stderr that is not a terminal (a log, CI): whole lines every 20 s and one at the end, never a
+    carriage-return redraw per step."""
+    pytest.importorskip("tqdm")
+    from radar_odom._progress import progress
+
+    bar = progress(total=5000, desc="odometry seq", unit="sweep")
+    for _ in range(5000):
+        bar.update(1)
+    bar.close()
+    err = capsys.readouterr().err
+    assert "\r" not in err
+    lines = err.splitlines()
+    assert 1 <= len(lines) <= 3 and lines[-1].startswith("odometry seq: 100%") and "5000/5000" in lines[-1]

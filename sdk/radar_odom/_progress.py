@@ -2,13 +2,41 @@
 from __future__ import annotations
 
 
+import sys
+
+LOG_INTERVAL_S = 20.0  # not a terminal (a log file, CI): one line at most this often
+
+
 def progress(iterable=None, total=None, desc=None, unit="it", disable=False):
-    """Wrap an iterable in a tqdm bar on stderr; a no-op wrapper when tqdm is not installed."""
+    """Wrap an iterable in a tqdm bar on stderr; a no-op wrapper when tqdm is not installed.
+
+    On a terminal the bar redraws in place; written to a log (stderr not a terminal) it prints a
+    whole line every `LOG_INTERVAL_S` seconds and one at the end, not a carriage-return update
+    per step (17 kB of them per run before)."""
     try:
         from tqdm.auto import tqdm
     except ImportError:  # the runtime API must work with the three core dependencies only
         return iterable if iterable is not None else _NullBar()
-    return tqdm(iterable, total=total, desc=desc, unit=unit, disable=disable, dynamic_ncols=True)
+    stream = sys.stderr
+    if getattr(stream, "isatty", lambda: False)():
+        return tqdm(iterable, total=total, desc=desc, unit=unit, disable=disable, dynamic_ncols=True)
+    return tqdm(iterable, total=total, desc=desc, unit=unit, disable=disable, file=_Lines(stream),
+                mininterval=LOG_INTERVAL_S, maxinterval=3 * LOG_INTERVAL_S, ncols=100)
+
+
+class _Lines:
+    """A file for tqdm that turns its in-place redraws into whole lines (for logs)."""
+
+    def __init__(self, stream):
+        self._stream = stream
+
+    def write(self, text: str) -> None:
+        text = text.replace("\r", "").rstrip("\n")
+        if text.strip():
+            self._stream.write(text + "\n")
+
+    def flush(self) -> None:
+        self._stream.flush()
 
 
 class _NullBar:
