@@ -7,10 +7,9 @@ import importlib.util
 from types import SimpleNamespace
 
 import pytest
+from test_radiate import write_radiate
 
 from radar_odom.cli import main
-
-from test_radiate import write_radiate
 
 
 @pytest.fixture

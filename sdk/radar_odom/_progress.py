@@ -1,7 +1,6 @@
 """Progress bars for long command-line work: tqdm when the ``cli`` extra is installed."""
 from __future__ import annotations
 
-
 import sys
 
 LOG_INTERVAL_S = 20.0  # not a terminal (a log file, CI): one line at most this often
