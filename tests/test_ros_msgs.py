@@ -197,3 +197,33 @@ def test_ros_stream_and_the_node_example_turn_radar_messages_into_odometry(cli_m
         assert odom.pose.covariance[14] == UNOBSERVED_VARIANCE
         assert (tf.transform.translation.x, tf.child_frame_id) == (odom.pose.pose.position.x, "base_link")
     assert len(published) == len(scans) - 1
+
+
+def test_an_image_whose_size_fields_undercount_its_data_is_refused():
+    """A height smaller than the data (a driver bug) would be read as a sweep of the first rows only."""
+    from types import SimpleNamespace
+
+    from radar_odom.errors import ScanFormatError
+    from radar_odom.ros_msgs import image_pixels
+
+    img = np.arange(40 * 10, dtype=np.uint8).reshape(40, 10)
+    msg = SimpleNamespace(encoding="mono8", height=20, width=10, step=10, is_bigendian=0, data=img.reshape(-1))
+    with pytest.raises(ScanFormatError, match=r"holds 400 bytes, more than height × step = 200"):
+        image_pixels(msg, "m")
+    msg.height = 40
+    assert np.array_equal(image_pixels(msg, "m"), img)
+
+
+def test_a_compressed_png_declaring_a_huge_image_is_refused_before_decoding():
+    import struct
+    import zlib
+    from types import SimpleNamespace
+
+    from radar_odom.errors import ScanFormatError
+    from radar_odom.ros_msgs import compressed_pixels
+
+    ihdr = struct.pack(">IIBBBBB", 65536, 65536, 8, 0, 0, 0, 0)
+    head = b"\x89PNG\r\n\x1a\n" + struct.pack(">I", 13) + b"IHDR" + ihdr + struct.pack(">I", zlib.crc32(b"IHDR" + ihdr))
+    msg = SimpleNamespace(format="png", data=np.frombuffer(head + b"\0" * 64, np.uint8))
+    with pytest.raises(ScanFormatError, match=r"PNG declares 65536 × 65536 pixels .* refused without decoding"):
+        compressed_pixels(msg, "compressed")

@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import ConfigError, ScanFormatError
+from .formats._layout import IHDR_BYTES, PNG_SIGNATURE, read_png_header
 from .scan import OXFORD_ENCODER_SIZE, OXFORD_RANGE_RESOLUTION_M, RadarScan
 
 IMAGE_MSGTYPE = "sensor_msgs/msg/Image"
@@ -149,6 +150,10 @@ def image_pixels(msg, source: str = "image") -> np.ndarray:
         raise ScanFormatError(
             f"{source}: image of {h}×{w} ({msg.encoding}, step {step}) holds {data.size} bytes; "
             "the message is truncated or its size fields are wrong")
+    if data.size > step * h:  # sensor_msgs/Image: data holds exactly step × height bytes
+        raise ScanFormatError(
+            f"{source}: image of {h}×{w} ({msg.encoding}, step {step}) holds {data.size} bytes, more than "
+            f"height × step = {step * h}: its size fields do not describe its data (rows would be misread)")
     rows = np.lib.stride_tricks.as_strided(data, shape=(h, w * dtype.itemsize), strides=(step, 1))
     return np.ascontiguousarray(rows).view(dtype).reshape(h, w).astype(dtype.newbyteorder("="))
 
@@ -161,7 +166,14 @@ def compressed_pixels(msg, source: str = "image") -> np.ndarray:
     fmt = str(getattr(msg, "format", ""))
     buf = np.frombuffer(bytes(msg.data) if not isinstance(msg.data, np.ndarray) else msg.data.tobytes(),
                         dtype=np.uint8)
-    img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED) if buf.size else None
+    if buf[: len(PNG_SIGNATURE)].tobytes() == PNG_SIGNATURE:
+        # the PNG files' decompression-bomb guard, from the header, before anything is decoded
+        read_png_header(source, buf[:IHDR_BYTES].tobytes())
+    try:
+        img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED) if buf.size else None
+    except cv2.error as exc:  # a header OpenCV refuses: one line, not its traceback
+        raise ScanFormatError(f"{source}: compressed image (format {fmt!r}) could not be decoded: "
+                              f"{str(exc).strip().splitlines()[-1][:160]}") from None
     if img is None:
         raise ScanFormatError(
             f"{source}: compressed image (format {fmt!r}, {buf.size} bytes) could not be decoded; "
