@@ -170,3 +170,19 @@ def test_progress_written_to_a_log_is_a_few_whole_lines(capsys):
     assert "\r" not in err
     lines = err.splitlines()
     assert 1 <= len(lines) <= 3 and lines[-1].startswith("odometry seq: 100%") and "5000/5000" in lines[-1]
+
+
+def test_a_duplicate_or_stale_stamp_skips_that_sweep_and_reads_on(cli_model):
+    """A bag that re-sends a message (or one stamped earlier) costs that sweep, not the run."""
+    from radar_odom import RadarOdometer, iter_estimates
+    from radar_odom.sim.simulator import simulate_drive
+
+    scans = [f.scan for f in simulate_drive(3, 5, "urban")]
+    stream = scans[:3] + [scans[2], scans[1]] + scans[3:]  # a duplicate, then a stale one
+    odo = RadarOdometer(cli_model, threads=1)
+    with iter_estimates(stream, odo, prefetch=0) as sweeps:
+        got = [(i, ts) for i, ts, _ in sweeps]
+    assert [i for i, _ in got] == [0, 1, 2, 5, 6]
+    assert [s["reason"] for s in sweeps.skipped] == ["stale_timestamp", "stale_timestamp"]
+    assert "is not after the previous sweep's" in sweeps.skipped[0]["message"]
+    assert len(odo.trajectory) == 5

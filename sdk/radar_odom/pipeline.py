@@ -289,12 +289,20 @@ class EstimateStream:
                         est = odo.step(prepared)
                     except StreamError as exc:
                         off_s = math.inf if name_us is None else abs(scan.timestamp_us - name_us) * 1e-6
-                        if name_us is None or off_s <= NAME_TIME_TOLERANCE_S or self.on_error == "raise":
+                        stamps = odo.trajectory.timestamps_us
+                        stale = len(stamps) > 0 and scan.timestamp_us <= int(stamps[-1])
+                        if stale and self.on_error == "skip" and (name_us is None or off_s <= NAME_TIME_TOLERANCE_S):
+                            # a duplicate or stale stamp (a bag's re-sent message): that sweep, not the stream
+                            problem = ("stale_timestamp", ScanFormatError(
+                                f"{path}: timestamp {scan.timestamp_us} µs is not after the previous sweep's "
+                                f"{int(stamps[-1])} µs (a duplicate or stale stamp)"))
+                        elif name_us is None or off_s <= NAME_TIME_TOLERANCE_S or self.on_error == "raise":
                             # the stream itself is broken (a gap beyond max_gap_s): not one sweep's fault
                             raise
-                        problem = ("bad_timestamp", ScanFormatError(
-                            f"{path}: first azimuth time {scan.timestamp_us} µs is {off_s:.3g} s from the file "
-                            f"name's time ({exc}); the sweep's header is corrupt"))
+                        else:
+                            problem = ("bad_timestamp", ScanFormatError(
+                                f"{path}: first azimuth time {scan.timestamp_us} µs is {off_s:.3g} s from the file "
+                                f"name's time ({exc}); the sweep's header is corrupt"))
                     else:
                         self.step_seconds.append(time.perf_counter() - t)
                         if name_us is not None:
