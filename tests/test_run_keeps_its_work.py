@@ -186,3 +186,14 @@ def test_a_duplicate_or_stale_stamp_skips_that_sweep_and_reads_on(cli_model):
     assert [s["reason"] for s in sweeps.skipped] == ["stale_timestamp", "stale_timestamp"]
     assert "is not after the previous sweep's" in sweeps.skipped[0]["message"]
     assert len(odo.trajectory) == 5
+
+
+def test_a_recording_without_one_usable_sweep_is_an_error_not_an_identity_trajectory(cli_model, tmp_path, capsys):
+    from radar_odom.sim.writer import write_drive
+
+    seq = write_drive(tmp_path / "seq", seed=1, frames=3, progress=False)
+    for png in (seq / "radar").glob("*.png"):
+        png.write_bytes(png.read_bytes()[:100])  # truncated
+    assert main(["run", str(seq), "--model", str(cli_model), "-o", str(tmp_path / "out"), "--no-plot"]) == 1
+    err = capsys.readouterr().err
+    assert "none of its 3 sweeps could be used" in err and "nothing to estimate" in err

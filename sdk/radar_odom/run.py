@@ -330,6 +330,11 @@ def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float | No
         bar.update(len(seq) - done)
     finally:
         bar.close()
+    if len(seq) and len(stream.skipped) >= len(seq):
+        # not one sweep could be used: an all-identity trajectory would look like a result
+        first = stream.skipped[0]
+        raise SequenceError(f"{seq_dir}: none of its {len(seq)} sweeps could be used (the first, {first['path']}: "
+                            f"{first['reason']}: {first['message']}); nothing to estimate")
     return finish(complete=True)
 
 
