@@ -92,6 +92,11 @@ def test_navtech_bscan_uses_its_own_encoder_angles_and_nanosecond_times():
     assert scan.range_resolution_m == 0.0438
     with pytest.raises(ScanFormatError, match="encoder size"):
         scan_from_bscan_msg(msg, PolarImageGeometry(encoder_size=500))
+    # stamps in µs where ns belong: the sweep would last a fraction of a millisecond (a trajectory dated 1970)
+    msg.timestamps = (ts_ns // np.uint64(1000)).astype(np.uint64)
+    with pytest.raises(ScanFormatError, match=r"span \d+ ns over \d+ rows.*not nanoseconds \(µs\?\)"):
+        scan_from_bscan_msg(msg)
+    msg.timestamps = ts_ns
     msg.encoder_values = enc[:-1]
     with pytest.raises(ScanFormatError, match="one per row"):
         scan_from_bscan_msg(msg)

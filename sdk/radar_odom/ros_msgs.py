@@ -222,6 +222,9 @@ def scan_from_compressed_msg(msg, geometry: PolarImageGeometry = PolarImageGeome
     return scan_from_polar_pixels(compressed_pixels(msg, source), stamp_ns(msg.header.stamp), geometry, source)
 
 
+MIN_SWEEP_SPAN_NS = 10**7  # 10 ms: a scanning radar's turn takes longer (CTS350-X 250 ms); µs read as ns: 0.25 ms
+
+
 def scan_from_bscan_msg(msg, geometry: PolarImageGeometry = PolarImageGeometry(),
                         source: str = "b-scan") -> RadarScan:
     """``navtech_msgs/msg/RadarBScanMsg`` → `RadarScan` with the driver's own azimuth times and
@@ -242,6 +245,12 @@ def scan_from_bscan_msg(msg, geometry: PolarImageGeometry = PolarImageGeometry()
         raise ScanFormatError(
             f"{source}: encoder value {int(enc.max())} ≥ encoder size {geometry.encoder_size}; give the radar's "
             "encoder size (its RadarConfigurationMsg.encoder_size)")
+    span_ns = int(ts_ns[valid].max() - ts_ns[valid].min())
+    if valid.sum() >= 10 and span_ns < MIN_SWEEP_SPAN_NS:
+        raise ScanFormatError(
+            f"{source}: the B-scan's azimuth timestamps span {span_ns} ns over {int(valid.sum())} rows, but a "
+            f"sweep takes tens of milliseconds or more (≥ {MIN_SWEEP_SPAN_NS // 10**6} ms even at 40 Hz): they are "
+            "not nanoseconds (µs?); RadarBScanMsg.timestamps must be ns")
     ts_us = (ts_ns // np.uint64(1000)).astype(np.int64)
     # a dropped row keeps a stale time and angle: give it its neighbours' spacing so the arrays stay ordered
     if not valid.all():
