@@ -58,14 +58,18 @@ def curve_scans(rate_deg: float, scenario: str, frames: int, seed: int):
     return [f.scan for f in frames_], np.array([f.pose_rel for f in frames_[1:]])
 
 
-def estimates(model, scans, prior: bool) -> np.ndarray:
-    """float64[N − 1, 3] relative poses of the odometer over ``scans`` (the fused estimate with
-    the prior, the graph's match without)."""
+def run_odometer(model, scans, prior: bool):
+    """The `RadarOdometer` (motion prior on or off) after stepping through ``scans``, and its estimates."""
     from radar_odom import RadarOdometer
 
     odo = RadarOdometer(model, motion_prior=prior)
-    out = [e for e in (odo.step(s) for s in scans) if e is not None]
-    return np.array([e.pose for e in out])
+    return odo, [e for e in (odo.step(s) for s in scans) if e is not None]
+
+
+def estimates(model, scans, prior: bool) -> np.ndarray:
+    """float64[N − 1, 3] relative poses of the odometer over ``scans`` (the fused estimate with
+    the prior, the graph's match without)."""
+    return np.array([e.pose for e in run_odometer(model, scans, prior)[1]])
 
 
 def yaw_stats(gt: np.ndarray, est: np.ndarray) -> tuple[float, float]:
@@ -96,19 +100,21 @@ def part_curves(models: dict, args) -> list[str]:
 def turned_yaws(model, first, second, turns_deg) -> np.ndarray:
     """float64[len(turns)]: the graph's relative yaw (rad) of ``second`` against ``first`` with both
     sweeps drawn in a frame turned by each common angle."""
-    from radar_odom import RadarOdometer
+    from radar_odom.onnx_model import OnnxModel
     from radar_odom.sweep_input import SweepMotion, graph_input
 
-    odo = RadarOdometer(model, motion_prior=False)
+    graph = OnnxModel(model, threads=None)
+    info = graph.info
+    if info.form != "stream":
+        raise SystemExit(f"{model}: the common-turn test runs stream-form models (this one is {info.form})")
+    first_in, state_in = info.inputs
+    zero = np.zeros(info.state_shape, dtype=np.float32)
     out = []
     for c in turns_deg:
         motion = SweepMotion(frame_pose=(0.0, 0.0, math.radians(c)))
-        x0, x1 = graph_input(first, odo.info, motion), graph_input(second, odo.info, motion)
-        odo.reset()
-        ref = odo._run_first(x0)  # the graph's state of the first sweep, as the odometer keeps it
-        odo._ref_feed = ref
-        pose, _, _ = odo._run_pair(x1)
-        out.append(pose[2])
+        x0, x1 = graph_input(first, info, motion), graph_input(second, info, motion)
+        state = graph.run({first_in: x0, state_in: zero})["state"]  # the first sweep's state, as a stream starts
+        out.append(float(np.asarray(graph.run({first_in: x1, state_in: state})["pose"]).reshape(3)[2]))
     return np.array(out)
 
 
@@ -150,7 +156,7 @@ def part_common_turn(models: dict, args) -> list[str]:
 
 
 def part_radiate(models: dict, args) -> list[str]:
-    from radar_odom import RadarOdometer, pretrained
+    from radar_odom import pretrained
     from radar_odom.formats import read_sequence
     from radar_odom.metrics import kitti_lengths_for, kitti_metrics, path_lengths_m, step_biases
     from radar_odom.model_zoo import default_model_name
@@ -162,20 +168,15 @@ def part_radiate(models: dict, args) -> list[str]:
         return [f"(skipped: {drive} is absent)"]
     seq = read_sequence(drive)
     scans = [f.scan for f in seq]
-    odo = RadarOdometer(pretrained(default_model_name()))
-    for s in scans:
-        odo.step(s)
-    gt, _, note = gnss_reference(seq.reference, seq.timestamps_us, odo.trajectory.poses)
+    default_run = run_odometer(pretrained(default_model_name()), scans, prior=True)[0]
+    gt, _, note = gnss_reference(seq.reference, seq.timestamps_us, default_run.trajectory.poses)
     gt_rel = relative_from_absolute(gt)
     lengths = kitti_lengths_for(path_lengths_m(gt)[-1])
     lines = [note, "", "| model | read-out | translation % | rotation °/m | step scale | yaw slope | exact-zero yaw |",
              "|---|---|---:|---:|---:|---:|---:|"]
     for name, model in models.items():
         for prior, label in ((False, "graph"), (True, "defaults")):
-            odo = RadarOdometer(model, motion_prior=prior)
-            for s in scans:
-                odo.step(s)
-            est = odo.trajectory.poses
+            est = run_odometer(model, scans, prior)[0].trajectory.poses
             m = kitti_metrics(gt, est, step=4, lengths=lengths, pooling="segments")
             ok = np.all(np.isfinite(gt_rel), axis=1)
             b = step_biases(gt_rel[ok], relative_from_absolute(est)[ok])
