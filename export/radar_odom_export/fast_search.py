@@ -10,7 +10,9 @@ at every translation, which costs K rotations and K forward DFTs of W×W images 
    rotated by every ``stride``-th yaw candidate and correlated with the previous one over the
    whole translation window. The yaw whose best translation scores highest *relative to the
    rotated image's norm* is kept (ArgMax): interpolation blurs every rotation but the identity,
-   and without the normalisation the energy it removes biases the pick towards yaw 0.
+   and without the normalisation the energy it removes biases the pick towards yaw 0. With a
+   stride above 1 the pick is moved to the fine step nearest the parabola through its score and
+   its two neighbours' (`sub_step_offset`), so the band below is centred on the peak.
 2. **Fine band** (`FastStreamStep`). The ``2b + 1`` consecutive candidates centred on that yaw
    (shifted, never truncated, to stay inside ±range) are evaluated at full resolution over the
    whole translation window, and so is yaw 0 (with the exact identity its spectrum is the new
@@ -24,11 +26,12 @@ at every translation, which costs K rotations and K forward DFTs of W×W images 
 
 **Rotation** (`PolarRotator`). onnxruntime's ``GridSample`` runs on one thread at ~20 ns per
 sample, slower than the DFTs it feeds. Rotation about the centre is a shift along azimuth in
-polar coordinates, so the image is resampled once onto a polar grid (two rows per yaw step,
-a radius every 0.5 px: oversampled so that the round trip blurs about as much as one bilinear
-rotation), rolled by whole rows for each candidate and resampled back with one table shared by
-every candidate; both resamplings are bilinear ``GatherElements`` with constant tables computed
-in the graph (folded by onnxruntime at session start). The first one writes the polar grid
+polar coordinates, so the image is resampled once onto a polar grid (the profile's
+``rotation_kernel``: cubic onto one row per yaw step and one radius per pixel, or bilinear onto
+two rows per yaw step and a radius every 0.5 px; `correlation.POLAR_GRIDS`), rolled by whole rows
+for each candidate and resampled back (bilinear) with one table shared by every candidate; both
+resamplings are ``GatherElements`` with constant tables computed in the graph (folded by
+onnxruntime at session start). The first one writes the polar grid
 already wrapped and zero-padded, and the band (consecutive yaws) reads one block of whole rows
 of it (a ``Gather`` whose start is the only data-dependent index), so the second resampling's
 tables are constant too, and no rolled copies are made (3.5× less gather time than K rolled
