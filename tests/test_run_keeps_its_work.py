@@ -197,3 +197,29 @@ def test_a_recording_without_one_usable_sweep_is_an_error_not_an_identity_trajec
     assert main(["run", str(seq), "--model", str(cli_model), "-o", str(tmp_path / "out"), "--no-plot"]) == 1
     err = capsys.readouterr().err
     assert "none of its 3 sweeps could be used" in err and "nothing to estimate" in err
+
+
+def test_a_stamp_jump_no_prediction_can_bridge_starts_a_new_segment(cli_model):
+    """A one-hour jump in a bag's stamps was extrapolated by the motion prior (a 24 km step, flagged
+    only 'gap'); beyond NEW_SEGMENT_GAP_S the stream starts afresh at the last pose instead."""
+    import dataclasses
+
+    import numpy as np
+
+    from radar_odom import RadarOdometer
+    from radar_odom.gaps import NEW_SEGMENT, NEW_SEGMENT_GAP_S
+    from radar_odom.sim.simulator import simulate_drive
+
+    scans = [f.scan for f in simulate_drive(4, 6, "urban")]
+    hour = 3600 * 10**6
+    later = [dataclasses.replace(s, timestamps_us=np.asarray(s.timestamps_us) + hour) for s in scans[3:]]
+    odo = RadarOdometer(cli_model, threads=1)
+    ests = [odo.step(s) for s in scans[:3] + later]
+    assert ests[0] is None and all(NEW_SEGMENT not in e.flags for e in ests[1:3])
+    jump = ests[3]
+    assert jump.flags == {NEW_SEGMENT} and np.array_equal(jump.pose, np.zeros(3))
+    assert all(NEW_SEGMENT not in e.flags and "gap" not in e.flags for e in ests[4:])
+    steps = np.hypot(*np.diff(odo.trajectory.poses[:, :2, 2], axis=0).T)
+    assert steps.max() < 5.0  # nothing like a 24 km extrapolation
+    assert ests[4].pose[0] > 1.0  # the new segment's first pair is a real match again
+    assert NEW_SEGMENT_GAP_S == 10.0

@@ -19,6 +19,11 @@ from collections import deque
 import numpy as np
 
 GAP = "gap"  # flag of an estimate whose interval was a gap (see `SweepPeriod`)
+NEW_SEGMENT = "new_segment"  # flag of the first sweep after a stamp jump no prediction can bridge
+# Beyond this a constant-velocity prediction cannot place the ±8 m search window: its 4 m/s² spread
+# alone is ½·a·t² = 200 m at 10 s (a one-hour stamp jump was extrapolated into a 24 km step). The
+# stream starts a new segment there: the sweep is kept at the last pose, unrelated to it.
+NEW_SEGMENT_GAP_S = 10.0
 GAP_FACTOR = 1.5  # an interval above 1.5 nominal periods: at least one sweep is missing
 _MIN_INTERVALS = 3  # intervals seen before the period is trusted
 

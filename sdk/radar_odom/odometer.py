@@ -79,7 +79,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import ConfigError, ModelMismatchError, StreamError
-from .gaps import GAP, SweepPeriod, compose_residual
+from .gaps import GAP, NEW_SEGMENT, NEW_SEGMENT_GAP_S, SweepPeriod, compose_residual
 from .motion_prior import GATED, PRIOR_DOMINATED, ExternalOdometry, MotionPrior, MotionPriorConfig
 from .motion_prior import compose as compose_relative
 from .motion_prior import fuse as fuse_estimates
@@ -422,6 +422,8 @@ class RadarOdometer:
             self._append(np.eye(3), ts)
             return None
         dt_s = (ts - self._stamps[-1]) * 1e-6
+        if self.max_gap_s is None and dt_s > NEW_SEGMENT_GAP_S:
+            return self._new_segment(scan, prepared, problem, ts, dt_s)
         flags = self._interval_flags(dt_s)
         odo_rel = odometry.relative_pose(dt_s) if odometry is not None else None
         if problem is not None:
@@ -442,6 +444,24 @@ class RadarOdometer:
         return self._accept(pose_ref, cov, new_ref, ts, dt_s, odo_rel, flags)
 
     # --- pieces ---------------------------------------------------------------------------
+    def _new_segment(self, scan: RadarScan, prepared, problem, ts: int, dt_s: float) -> Estimate:
+        """After a stamp jump beyond `NEW_SEGMENT_GAP_S`: the motion over it is unknown, so the sweep
+        is placed at the last pose with the search window's covariance, flagged ``new_segment``,
+        and the stream starts afresh from it (velocity, period and de-skew history forgotten)."""
+        self._prior.reset()
+        self._velocity_end_us = None
+        self._odometry_since_ref = None
+        self._period.reset()
+        self._recent_motion.clear()
+        self._ref_feed = None
+        if problem is None:
+            self._ref_feed = self._run_first(self._input(scan, prepared, None))
+        self._append(self._poses[-1].copy(), ts)
+        if self._ref_feed is not None:
+            self._set_reference(len(self._poses) - 1)
+        flags = {NEW_SEGMENT} if problem is None else {NEW_SEGMENT, DEGENERATE, problem}
+        return Estimate(np.zeros(3), self._prior_cov.copy(), ts, frozenset(flags))
+
     def _check_geometry(self, scan: RadarScan) -> None:
         check_sweep_geometry(scan, self.info, self.path.name)
 

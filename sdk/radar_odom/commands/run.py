@@ -106,7 +106,7 @@ def run(args) -> int:
     import numpy as np
 
     from ..errors import GroundTruthWarning, OutputError, RadarOdomError
-    from ..gaps import GAP
+    from ..gaps import GAP, NEW_SEGMENT, NEW_SEGMENT_GAP_S
     from ..model_zoo import default_model_name, resolve_model
     from ..pipeline import DEFAULT_PREFETCH
     from ..run import format_metrics, run_sequence
@@ -149,6 +149,12 @@ def run(args) -> int:
         more = f" and {len(gaps) - 8} more" if len(gaps) > 8 else ""
         print(f"crossed {len(gaps)} gap(s) (interval > 1.5 nominal periods; flagged 'gap' in estimates.csv): "
               f"{listed}{more}")
+    jumps = [i for i, e in enumerate(result.estimates) if NEW_SEGMENT in e.flags]
+    if jumps:
+        dts = np.diff(result.timestamps_us) * 1e-6
+        print(f"started {len(jumps)} new segment(s) after stamp jumps beyond {NEW_SEGMENT_GAP_S:g} s (the motion over "
+              "them is unknown: each new segment continues from the last pose; flagged 'new_segment'): "
+              + ", ".join(f"sweep {i + 1} ({dts[i]:.1f} s)" for i in jumps[:8]))
     for kind, path in result.files.items():
         print(f"{kind}: {path}")
     for problem in result.problems:  # stages after the odometry that failed; the outputs above are written
