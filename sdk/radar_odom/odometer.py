@@ -11,7 +11,10 @@ ground-truth convention, see `radar_odom.se2`) with its 3×3 covariance over (x,
 Faults, and what the odometer does about them (never a NaN, never a broken trajectory):
 
 - A sweep whose timestamp (first azimuth) does not increase → `StreamError`.
-- Gaps (dropped sweeps, a stalled recorder): by default every gap is crossed. An interval
+- Gaps (dropped sweeps, a stalled recorder): by default every gap up to `NEW_SEGMENT_GAP_S`
+  (10 s) is crossed; beyond it (a clock reset) no prediction places the search window, so the
+  sweep starts a new segment: kept at the last pose with the window's covariance, flagged
+  ``"new_segment"``, the stream restarted from it. An interval
   longer than 1.5 nominal periods (the median of the last intervals) is a gap, and its
   estimate is flagged ``"gap"``. Where the reference sweep is that far back and the motion
   prior can predict the motion over the interval, the new sweep is drawn in the predicted frame
