@@ -255,3 +255,28 @@ def test_bad_arrays_from_a_driver():
 def test_unknown_format(tmp_path):
     with pytest.raises(ValueError, match="unknown radar format 'kitti'"):
         load_scan(tmp_path / "x.png", "kitti")
+
+
+def test_an_explicit_format_that_the_folder_contradicts_warns(tmp_path):
+    """`load_scan(oxford_png, format="mulran")` read the sweep with MulRan's range resolution,
+    silently: now a warning names both layouts (the sweep is still read as asked)."""
+    import warnings
+
+    from radar_odom.errors import FormatWarning
+    from radar_odom.sim.writer import write_drive
+
+    seq = write_drive(tmp_path / "seq", seed=2, frames=1, progress=False)
+    png = next((seq / "radar").glob("*.png"))
+    with pytest.warns(FormatWarning, match=r"read as 'mulran' as asked, but its header holds µs timestamps"):
+        scan = load_scan(png, format="mulran")
+    assert scan.range_resolution_m == pytest.approx(0.05952)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_scan(png, format="oxford")
+        load_scan(png, format="boreas")  # a bare radar/ folder cannot tell Oxford from Boreas
+        load_scan(png, format="mulran", range_resolution_m=0.0432)  # told the resolution: nothing to warn of
+    # a folder that names its dataset for certain
+    applanix = seq / "applanix"
+    applanix.mkdir()
+    with pytest.warns(FormatWarning, match=r"read as 'oxford' as asked, but its folder is laid out as 'boreas'"):
+        load_scan(png, format="oxford")

@@ -84,3 +84,8 @@ class GroundTruthWarning(UserWarning):
     """Ground-truth rows that were left out (non-finite values, conflicting duplicates); the
     message names the file and line numbers. The pairs they would have covered have no ground
     truth (NaN), the rest is used as it is."""
+
+
+class FormatWarning(UserWarning):
+    """An explicit ``format=`` that the file contradicts (its folder or its header): the sweep is read
+    as asked, with that dataset's range resolution, which may be wrong for it."""

@@ -14,18 +14,21 @@ body (x forward, y left, z up) in a z-up world frame; a header line is allowed.
 """
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import ScanFormatError
+from ..errors import FormatWarning, ScanFormatError
 from ..scan import RadarScan
 from ._layout import (
+    NS_THRESHOLD,
     check_dims,
     looks_like_header,
     name_timestamp,
     read_png_u8,
     scan_from_header_image,
+    split_header,
     to_microseconds,
 )
 
@@ -61,6 +64,13 @@ def load_mulran(
     oxford_form = folder == OXFORD_FORM_DIR or (folder != RAW_DIR and looks_like_header(img))
     if oxford_form:
         check_dims(img, src, header=True, num_azimuths=num_azimuths, num_bins=num_bins)
+        stamps = split_header(img).timestamps
+        if range_resolution_m is None and stamps.size and int(stamps.max()) < NS_THRESHOLD:
+            # MulRan writes ns into the header; µs is Oxford's and Boreas's layout (0.0432 / 0.0596 m bins)
+            warnings.warn(f"{src}: read as 'mulran' as asked, but its header holds µs timestamps, as Oxford and "
+                          "Boreas sweeps do (MulRan's hold ns); the range resolution is MulRan's "
+                          f"{MULRAN_RANGE_RESOLUTION_M} m — pass range_resolution_m= or the right format",
+                          FormatWarning, stacklevel=3)
         return scan_from_header_image(
             img, src, use_valid_column=True, range_resolution_m=res, range_offset_m=offset
         )

@@ -1,8 +1,10 @@
 """`load_scan`: one entry point for sweeps of every supported dataset, with format detection."""
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
+from ..errors import FormatWarning
 from ..scan import RadarScan
 from .boreas import POSES_RELPATH, load_boreas
 from .mulran import MULRAN_SWEEP_PERIOD_S, OXFORD_FORM_DIR, RAW_DIR, load_mulran
@@ -61,6 +63,8 @@ def load_scan(
             the frame in ``Navtech_Polar.txt``.
     """
     fmt = detect_format(path) if format is None else format
+    if format is not None and format in FORMATS and range_resolution_m is None:
+        _check_format_against_layout(path, format)
     if fmt == "oxford":
         return load_oxford(
             path,
@@ -96,3 +100,17 @@ def load_scan(
             sweep_period_s=sweep_period_s,
         )
     raise ValueError(f"unknown radar format {format!r}; choose one of {', '.join(FORMATS)} or None")
+
+
+def _check_format_against_layout(path, format: str) -> None:
+    """A `FormatWarning` where ``format`` contradicts a layout the folder names for certain: a MulRan or
+    RADIATE folder, a Boreas sequence (``applanix/`` beside it). A bare folder proves nothing (the
+    loaders check what the content can tell: MulRan's header stamps are ns, Oxford's and Boreas's µs)."""
+    found = detect_format(path)
+    if found != format and found != "oxford":  # "oxford" is detect_format's fallback, not a finding
+        warnings.warn(
+            f"{path}: read as {format!r} as asked, but its folder is laid out as {found!r}; the range "
+            f"resolution is {format}'s default — pass range_resolution_m= if that is not this radar's, or "
+            "leave format=None to detect it",
+            FormatWarning, stacklevel=3)
+
