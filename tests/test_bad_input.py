@@ -448,7 +448,7 @@ def test_a_nan_ground_truth_row_is_reported_by_line_and_costs_one_pair(tmp_path)
         return lines
 
     _, gt = oxford_recording(tmp_path, rows=nan_row)
-    with pytest.warns(GroundTruthWarning, match=r"radar_odometry\.csv: NaN/inf pose on line 4"):
+    with pytest.warns(GroundTruthWarning, match=r"radar_odometry\.csv: NaN/inf or implausible pose .* on line 4"):
         seq = read_sequence(tmp_path)
     ok = np.isfinite(seq.gt_relative).all(axis=1)
     assert ok.tolist() == [True, True, False, True, True]
@@ -477,13 +477,29 @@ def test_conflicting_duplicate_ground_truth_rows_are_reported(tmp_path):
     assert ok.tolist() == [True, False, True, True, True]
 
 
+@pytest.mark.parametrize("column, value", [(7, "1e20"), (2, "1e308"), (3, "-2e4"), (7, "7.0")])
+def test_an_implausible_ground_truth_row_costs_one_pair_not_the_run(tmp_path, column, value):
+    """A yaw of 1e20 rad or an x of 1e308 m read as a pose (an OverflowError from the CLI before)."""
+    def bad_row(lines):
+        parts = lines[3].split(",")
+        parts[column] = value
+        lines[3] = ",".join(parts)
+        return lines
+
+    oxford_recording(tmp_path, rows=bad_row)
+    with pytest.warns(GroundTruthWarning, match=r"implausible pose \(beyond 10000 m or 2π\) on line 4"):
+        seq = read_sequence(tmp_path)
+    assert np.isfinite(seq.gt_relative).all(axis=1).tolist() == [True, True, False, True, True]
+
+
 def test_zup_pose_files_drop_nan_and_conflicting_rows_by_line(tmp_path):
     from radar_odom.formats._csv import read_numeric_csv
 
     p = tmp_path / "poses.csv"
     p.write_text("t,a,b\n1,0.0,0.0\n2,nan,0.0\n3,1.0,1.0\n3,2.0,2.0\n4,1.0,1.0\n4,1.0,1.0\n5,5.0,5.0\n")
     with pytest.warns(
-        GroundTruthWarning, match=r"NaN/inf values on line 3; different poses for the same time on lines 4 and 5"
+        GroundTruthWarning, match=r"NaN/inf or implausible \(beyond 1e\+08\) values on line 3; different poses for the "
+        r"same time on lines 4 and 5"
     ):
         _, stamps, values = read_numeric_csv(p)
     assert stamps.tolist() == [1, 4, 5] and np.isfinite(values).all()

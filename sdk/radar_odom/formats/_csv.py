@@ -71,10 +71,16 @@ def read_numeric_csv(path, *, required=(), num_columns=None):
     return names, *_drop_bad_rows(path, stamps, values, start)
 
 
+MAX_POSE_VALUE = 1e8  # m or rad: UTM northings are below 1e7, an angle or a rotation entry below 10
+
+
 def _drop_bad_rows(path, stamps, values, start):
-    """Rows with a NaN/inf value, and rows repeating a stamp with other values, are dropped
-    (identical repeats are kept once), with one `GroundTruthWarning` naming their lines."""
-    finite = np.all(np.isfinite(values), axis=1)
+    """Rows with a NaN/inf value or one beyond `MAX_POSE_VALUE` (no coordinate, angle or rotation
+    entry of a pose is that large: a yaw of 1e20 or an x of 1e308 is a corrupt row), and rows
+    repeating a stamp with other values, are dropped (identical repeats are kept once), with one
+    `GroundTruthWarning` naming their lines."""
+    with np.errstate(invalid="ignore"):
+        finite = np.all(np.isfinite(values) & (np.abs(values) <= MAX_POSE_VALUE), axis=1)
     keep = finite.copy()
     seen: dict[int, int] = {}
     conflicts = []
@@ -98,7 +104,8 @@ def _drop_bad_rows(path, stamps, values, start):
     bad = (np.flatnonzero(~finite) + start).tolist()
     if bad:
         more = f" and {len(bad) - 5} more" if len(bad) > 5 else ""
-        parts.append(f"NaN/inf values on line{'s' if len(bad) > 1 else ''} {', '.join(map(str, bad[:5]))}{more}")
+        lines = f"line{'s' if len(bad) > 1 else ''} {', '.join(map(str, bad[:5]))}{more}"
+        parts.append(f"NaN/inf or implausible (beyond {MAX_POSE_VALUE:.0e}) values on {lines}")
     if conflicts:
         more = f" and {len(conflicts) - 5} more" if len(conflicts) > 5 else ""
         parts.append("different poses for the same time on lines "

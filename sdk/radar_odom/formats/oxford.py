@@ -29,6 +29,8 @@ GT_COLUMNS = (
 )
 # the columns read_sequence needs; the others (z, roll, pitch, mid times) are informative
 GT_REQUIRED = ("source_radar_timestamp", "destination_radar_timestamp", "x", "y", "yaw")
+# a relative pose between two sweeps further than this (m) is a corrupt row: 300 m is a 10-s gap at 30 m/s
+MAX_STEP_M = 1e4
 
 
 def load_oxford(
@@ -183,7 +185,8 @@ def read_oxford_ground_truth(path) -> dict[tuple[int, int], np.ndarray]:
                     f"{len(header)} comma-separated numbers"
                 ) from None
             key = (earlier, later)
-            if not np.all(np.isfinite(pose)):
+            if not (np.all(np.isfinite(pose)) and np.all(np.abs(pose[:2]) <= MAX_STEP_M)
+                    and abs(pose[2]) <= 2 * np.pi):  # a yaw of 1e20 or an x of 1e308 is a corrupt row
                 nonfinite.append(lineno)
                 pose = np.full(3, np.nan)
             if key in out:
@@ -202,7 +205,8 @@ def read_oxford_ground_truth(path) -> dict[tuple[int, int], np.ndarray]:
         parts = []
         if nonfinite:
             more = f" and {len(nonfinite) - 5} more" if len(nonfinite) > 5 else ""
-            parts.append(f"NaN/inf pose on line{'s' if len(nonfinite) > 1 else ''} "
+            parts.append(f"NaN/inf or implausible pose (beyond {MAX_STEP_M:g} m or 2π) on "
+                         f"line{'s' if len(nonfinite) > 1 else ''} "
                          f"{', '.join(map(str, nonfinite[:5]))}{more}")
         if conflicts:
             more = f" and {len(conflicts) - 5} more" if len(conflicts) > 5 else ""
