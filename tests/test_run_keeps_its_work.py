@@ -223,3 +223,22 @@ def test_a_stamp_jump_no_prediction_can_bridge_starts_a_new_segment(cli_model):
     assert steps.max() < 5.0  # nothing like a 24 km extrapolation
     assert ests[4].pose[0] > 1.0  # the new segment's first pair is a real match again
     assert NEW_SEGMENT_GAP_S == 10.0
+
+
+def test_a_range_resolution_that_changes_mid_stream_is_an_error(cli_model):
+    """Read as given, a sweep with other range bins turned a reader's wrong setting into motion."""
+    import dataclasses
+
+    from radar_odom import RadarOdometer
+    from radar_odom.errors import StreamError
+    from radar_odom.sim.simulator import simulate_drive
+
+    scans = [f.scan for f in simulate_drive(5, 3, "urban")]
+    odo = RadarOdometer(cli_model, threads=1)
+    odo.step(scans[0])
+    odo.step(scans[1])
+    wrong = dataclasses.replace(scans[2], range_resolution_m=scans[2].range_resolution_m * 1.1)
+    with pytest.raises(StreamError, match=r"range bins of .* but this stream's are .* call reset\(\)"):
+        odo.step(wrong)
+    odo.reset()
+    assert odo.step(wrong) is None  # a new stream takes the new bins

@@ -314,6 +314,7 @@ class RadarOdometer:
         self._odometry_since_ref: tuple | None = None
         self._period.reset()
         self._recent_motion: deque = deque(maxlen=DESKEW_STEPS)  # (relative pose, interval s)
+        self._range_scale: tuple | None = None  # (range resolution m, offset m) of the stream's sweeps
 
     @property
     def trajectory(self) -> Trajectory:
@@ -415,6 +416,7 @@ class RadarOdometer:
         self._check_geometry(scan)
         ts = scan.timestamp_us
         first = self._check_time(ts, scan.source)
+        self._check_range_scale(scan, first)
         problem = self.sweep_problem(scan) if prepared is None else prepared.problem
         if first:
             # A stream must start from a sweep that can be matched: a degenerate first sweep is
@@ -447,6 +449,19 @@ class RadarOdometer:
         return self._accept(pose_ref, cov, new_ref, ts, dt_s, odo_rel, flags)
 
     # --- pieces ---------------------------------------------------------------------------
+    def _check_range_scale(self, scan: RadarScan, first: bool) -> None:
+        """`StreamError` where a stream's range bins change size or origin: a radar does not change
+        them mid-recording, so the reader's settings are wrong, and matching across the change would
+        read a scale error as motion."""
+        scale = (float(scan.range_resolution_m), float(scan.range_offset_m))
+        if first or self._range_scale is None:
+            self._range_scale = scale
+        elif not np.allclose(scale, self._range_scale, rtol=1e-6, atol=1e-9):
+            raise StreamError(
+                f"{scan.source}: range bins of {scale[0]} m from {scale[1]} m, but this stream's are "
+                f"{self._range_scale[0]} m from {self._range_scale[1]} m; a radar does not change them mid-recording "
+                "— check the reader's range resolution, or call reset() to start a new stream")
+
     def _new_segment(self, scan: RadarScan, prepared, problem, ts: int, dt_s: float) -> Estimate:
         """After a stamp jump beyond `NEW_SEGMENT_GAP_S`: the motion over it is unknown, so the sweep
         is placed at the last pose with the search window's covariance, flagged ``new_segment``,
