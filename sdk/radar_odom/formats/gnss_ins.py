@@ -41,7 +41,10 @@ Left in, relative poses gain a 13 % sideways component (|y| / x summed over the 
 steps; 4 % once corrected). `estimate_heading_offset_rad` measures the offset (−0.1309 rad
 = −7.50° here, interquartile range 1.03° wide; negative = heading clockwise of the track) and
 `poses_at` / `relative_poses_at` take it as ``heading_offset_rad`` and use
-``heading − heading_offset_rad``, which turns the heading counter-clockwise onto the track.
+``heading − heading_offset_rad``, which turns the heading counter-clockwise onto the track. The
+offset is not constant over a whole drive (the INS re-aligns: ~1° for several seconds on the full
+drive's return leg), so the reference `radar-odom run` uses follows it in time
+(`heading_offset_track_rad`: a ±5 s running median over moving samples, one offset per sample).
 
 **Clock.** The GNSS/INS clock is not the radar's: the reference for radar time t is the sample
 at ``t + clock_offset_s`` (≈ +1.7 s on the shared drive, ≈ 64 s on ``radiate-fog_6_0``).
@@ -271,8 +274,8 @@ def _forward_samples(stamps: np.ndarray, listing, times_file) -> tuple[np.ndarra
     """(indices of the listings that are samples, notes): a listing is a new sample when its time is
     after every earlier one. A repeated time is the same sample listed again; a clock that steps
     back (a receiver re-sync: −0.36 s once on the full shared drive) repeats time already covered,
-    so the samples until the clock is past the last kept time again are dropped (the first word
-    on a time is kept), and each step back is noted once: where and by how much."""
+    so the samples until the clock is past the last kept time again are dropped (what was said
+    first about a time is kept), and each step back is noted once: where and by how much."""
     latest = np.maximum.accumulate(stamps)
     is_new = np.r_[True, stamps[1:] > latest[:-1]]
     notes = []
