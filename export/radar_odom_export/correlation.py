@@ -39,7 +39,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from radar_odom.profiles import GridProfile
+from radar_odom.profiles import ROTATION_KERNELS, GridProfile
 
 
 def translation_offsets(profile: GridProfile) -> torch.Tensor:
@@ -198,8 +198,8 @@ def gather_cubic(flat: torch.Tensor, index: torch.Tensor, wr: torch.Tensor, wc: 
 # grid is oversampled so that its round trip blurs little; the cubic kernel keeps that detail on a
 # grid of one row per yaw step and one radius per pixel, which also reads small turns more fully
 # (cart-0.4 on the seed-5150 curve: 0.58 of the turn on the finer grid, 0.63 on this one; shared
-# RADIATE drive, graph alone: 3.79 → 3.39 %) and costs a quarter of the samples (the step 1.09×
-# the bilinear grid's time instead of 1.43×; benchmarks/compare_graphs.py, interleaved).
+# RADIATE drive, graph alone: 3.79 → 3.39 %) and costs a quarter of the samples (the step 0.98–1.09×
+# the previous bilinear graph's time, against 1.43× for cubic on the finer grid; compare_graphs.py).
 POLAR_GRIDS = {"bilinear": (2, 0.5), "cubic": (1, 1.0)}
 
 
@@ -238,8 +238,8 @@ class PolarRotator(nn.Module):
     def __init__(self, width_px: int, step_rad: float, radius_px: float, max_shift: int,
                  oversample: int = 2, radial_step_px: float = 0.5, kernel: str = "bilinear"):
         super().__init__()
-        if kernel not in ("bilinear", "cubic"):
-            raise ValueError(f"kernel={kernel!r}: choose 'bilinear' or 'cubic'")
+        if kernel not in ROTATION_KERNELS:
+            raise ValueError(f"kernel={kernel!r}: choose one of {ROTATION_KERNELS}")
         self.kernel = kernel  # of the first resampling (image → polar grid); the second is bilinear
         steps = 2 * math.pi / step_rad
         if abs(steps - round(steps)) > 1e-6:
