@@ -64,8 +64,10 @@ def run_profile(
             name=label,
             untrained=untrained,
             progress_bar=progress_bar,
+            echo=echo,
         )
         if file_sweeps > 0:
+            echo(f"{label}: {file_sweeps} sweeps from PNG files, pipelined and serial ...")
             r.files = file_throughput(path, pngs, sweeps=file_sweeps, threads=threads)
         echo(summary_line(r))
         results.append(r.to_dict())

@@ -38,8 +38,10 @@ class ModelProfile:
 
 def profile_model(model_path, pngs: list[bytes], *, steps: int = 200, warmup: int = 20, threads: int = 2,
                   reference_steps: int = 30, operator_steps: int = 50, trace_dir=None, name=None,
-                  untrained: bool = False, progress_bar: bool = True) -> ModelProfile:
-    """Time every stage of ``steps`` stream steps of one model (see the module docstring)."""
+                  untrained: bool = False, progress_bar: bool = True, echo=None) -> ModelProfile:
+    """Time every stage of ``steps`` stream steps of one model (see the module docstring); ``echo``
+    (e.g. print) says when each later phase starts (they run for a minute or more without a bar)."""
+    say = echo or (lambda text: None)
     from .._progress import progress
     from ..odometer import RadarOdometer
     from ..onnx_model import OnnxModel
@@ -87,8 +89,10 @@ def profile_model(model_path, pngs: list[bytes], *, steps: int = 200, warmup: in
     result.stages = {s: latency_summary(v) for s, v in times.items()}
     result.peak_rss_mb = peak_rss_mb()
     if streaming and reference_steps > 0:
+        say(f"{result.name}: the same search in numpy (pocketfft), {reference_steps} steps ...")
         result.reference = _reference(model, info, pngs, odo, reference_steps, search)
     if operator_steps > 0:
+        say(f"{result.name}: onnxruntime's profiler, {operator_steps} steps ...")
         result.operators, result.masker = _operators(model_path, threads, pngs, odo, info, operator_steps,
                                                      trace_dir, result.name)
     return result
