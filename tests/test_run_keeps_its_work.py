@@ -242,3 +242,12 @@ def test_a_range_resolution_that_changes_mid_stream_is_an_error(cli_model):
         odo.step(wrong)
     odo.reset()
     assert odo.step(wrong) is None  # a new stream takes the new bins
+
+
+@pytest.mark.torch
+def test_train_defaults_to_the_shipped_models_pose_loss():
+    pytest.importorskip("torch")
+    from radar_odom_export.train import default_pose_loss
+
+    assert default_pose_loss(None) == default_pose_loss("fast") == "ce"  # every shipped model's
+    assert default_pose_loss("decoupled") == "mse"  # the one loss the decoupled search takes

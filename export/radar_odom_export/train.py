@@ -118,6 +118,12 @@ def plot_path(output) -> Path:
 
 
 # ----------------------------------------------------------------------------- losses
+def default_pose_loss(search: str | None) -> str:
+    """The pose loss `radar-odom train` uses when none is asked: cross-entropy (the shipped models'),
+    or the soft-argmax error through the decoupled search, the only loss that search takes."""
+    return "mse" if search == "decoupled" else "ce"
+
+
 def pose_loss(
     pred_xyyaw: torch.Tensor, gt_xyyaw: torch.Tensor, profile: GridProfile, yaw_weight: float = 1.0
 ) -> torch.Tensor:
@@ -808,7 +814,7 @@ def run_from_args(args) -> dict:
             lr_decay=args.lr_decay,
             batch=args.batch,
             yaw_weight=args.yaw_weight,
-            pose_loss=getattr(args, "pose_loss", "mse"),
+            pose_loss=getattr(args, "pose_loss", None) or default_pose_loss(getattr(args, "search", None)),
             search=getattr(args, "search", None) or "exhaustive",
             augment=augment,
             seed=args.seed,

@@ -95,10 +95,11 @@ def register(subparsers) -> None:
     g.add_argument(
         "--pose-loss",
         choices=("mse", "ce", "ce+mse"),
-        default="mse",
+        default=None,
         help="mse: the paper's squared soft-argmax error (in grid cells); ce: cross-entropy of the "
         "candidate softmax against the true pose (Barsan et al. 2018), strong gradients even "
-        "when the mean sits on a wrong peak; ce+mse: both (default: %(default)s)",
+        "when the mean sits on a wrong peak; ce+mse: both (default: ce, what the shipped models were "
+        "trained with; mse with --search decoupled, the only loss it takes)",
     )
     g.add_argument(
         "--search",
