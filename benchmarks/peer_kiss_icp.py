@@ -10,9 +10,10 @@ azimuth"):
 
 * for every valid azimuth row, the candidate bins are those whose centre range
   ``range_offset_m + (b + 0.5) * range_resolution_m`` lies in ``(min_range, max_range)``;
-* a bin is a return if its power exceeds the row's noise-relative threshold
-  ``mean + sigmas * std`` (mean and standard deviation of that row's candidate bins; an
-  adaptive threshold, so it follows each sensor's gain and each row's clutter level);
+* a bin is a return if its power exceeds the sweep's ``percentile``-th power percentile (99 by
+  default: one threshold for the sweep, so rows of bare noise keep nothing), or with
+  ``--percentile none`` the row's ``mean + sigmas * std`` (earlier releases: it kept every row's
+  strongest noise, sensor-fixed, and read the shared RADIATE drive as standing still);
 * of those, the ``k`` strongest are kept (fewer where fewer pass the threshold);
 * each kept bin becomes the point ``(r cos a, r sin a, 0)`` in the sensor frame: azimuth
   ``a = 0`` along +x (forward), growing towards +y (right), i.e. the Oxford frame, so the poses
@@ -306,8 +307,10 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     results = {v.label(opt.k): {"oxford": oxford_pair(args.real, opt, v), "radiate": radiate_run(args.real, opt, v)}
                for v in VARIANTS}
+    above = (f"the sweep's {opt.percentile:g}th power percentile" if opt.percentile is not None
+             else f"row mean + {opt.sigmas:g} std")
     header = (f"KISS-ICP {kiss_version} on radar point clouds: {opt.k} strongest returns per azimuth above "
-              f"row mean + {opt.sigmas:g} std, {opt.min_range_m:g}–{opt.max_range_m:g} m; voxel {opt.voxel_m:g} m. "
+              f"{above}, {opt.min_range_m:g}–{opt.max_range_m:g} m; voxel {opt.voxel_m:g} m. "
               "Two-sweep runs (Oxford pair, direct A→C) have no motion model yet, so all rows share them.")
     tables = [header, real_table(results)]
     out = {"kiss_icp_version": kiss_version, "options": opt.__dict__, "real": results}
