@@ -39,6 +39,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 REAL = ROOT.parent / "shared" / "data" / "real"
 PARTS = ("curves", "common-turn", "radiate", "oxford")
+OXFORD_PAIR, RADIATE_DRIVE = "oxford-2019-01-10-14-36-48", "radiate-2019-02-12-edinburgh"
 SPEED_MPS = 10.0
 RAMP_PAIRS = 4  # pairs at the start of a bend drive that are still on the lead-in or the ramp
 
@@ -125,12 +126,12 @@ def common_turn_pairs(args):
     pairs = {}
     scans, _ = curve_scans_seed5150()
     pairs["simulated curve (seed 5150, pairs 34-39)"] = [(scans[i], scans[i + 1]) for i in range(34, 40)]
-    oxford = REAL / "oxford-2019-01-10-14-36-48"
-    if oxford.is_dir():
+    oxford = real_recording(OXFORD_PAIR)
+    if oxford is not None:
         s = [f.scan for f in read_sequence(oxford)]
         pairs["real Oxford pair"] = [(s[0], s[1])]
-    radiate = REAL / "radiate-2019-02-12-edinburgh"
-    if radiate.is_dir():
+    radiate = real_recording(RADIATE_DRIVE)
+    if radiate is not None:
         s = [f.scan for f in read_sequence(radiate)]
         pairs["real RADIATE pairs (sweeps 60, 80, …, 240)"] = [(s[i], s[i + 1]) for i in range(60, 241, 20)]
     return pairs
@@ -155,6 +156,16 @@ def part_common_turn(models: dict, args) -> list[str]:
     return lines
 
 
+def real_recording(name: str) -> Path | None:
+    """A shared real recording's folder, or None where ../shared/data/real lacks it."""
+    path = REAL / name
+    return path if path.is_dir() else None
+
+
+def skipped(name: str) -> list[str]:
+    return [f"(skipped: {REAL / name} is absent)"]
+
+
 def part_radiate(models: dict, args) -> list[str]:
     from radar_odom import pretrained
     from radar_odom.formats import read_sequence
@@ -163,9 +174,9 @@ def part_radiate(models: dict, args) -> list[str]:
     from radar_odom.run import gnss_reference
     from radar_odom.se2 import relative_from_absolute
 
-    drive = REAL / "radiate-2019-02-12-edinburgh"
-    if not drive.is_dir():
-        return [f"(skipped: {drive} is absent)"]
+    drive = real_recording(RADIATE_DRIVE)
+    if drive is None:
+        return skipped(RADIATE_DRIVE)
     seq = read_sequence(drive)
     scans = [f.scan for f in seq]
     default_run = run_odometer(pretrained(default_model_name()), scans, prior=True)[0]
@@ -191,9 +202,9 @@ def part_oxford(models: dict, args) -> list[str]:
 
     from radar_odom.formats import read_sequence
 
-    seq_dir = REAL / "oxford-2019-01-10-14-36-48"
-    if not seq_dir.is_dir():
-        return [f"(skipped: {seq_dir} is absent)"]
+    seq_dir = real_recording(OXFORD_PAIR)
+    if seq_dir is None:
+        return skipped(OXFORD_PAIR)
     row = next(csv.DictReader(open(seq_dir / "gt" / "radar_odometry.csv")))
     gx, gyaw = float(row["x"]), float(row["yaw"])
     scans = [f.scan for f in read_sequence(seq_dir)]

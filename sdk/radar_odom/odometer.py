@@ -308,13 +308,18 @@ class RadarOdometer:
         self._stamps: list[int] = []
         self._ref_feed: np.ndarray | None = None  # state (stream form) or sweep input (pair form)
         self._ref_index = -1  # trajectory index of the sweep ``_ref_feed`` belongs to
+        self._recent_motion: deque = deque(maxlen=DESKEW_STEPS)  # (relative pose, interval s)
+        self._forget_motion()
+        self._range_scale: tuple | None = None  # (range resolution m, offset m) of the stream's sweeps
+
+    def _forget_motion(self) -> None:
+        """Forget how the stream moved (a new stream, or a new segment after a stamp jump)."""
         self._prior.reset()  # velocity (also tracked with the prior off: degenerate sweeps use it)
         self._velocity_end_us: int | None = None  # timestamp at the end of the velocity's interval
         # external odometry from the reference sweep to the latest one, (pose, cov); None if unknown
         self._odometry_since_ref: tuple | None = None
         self._period.reset()
-        self._recent_motion: deque = deque(maxlen=DESKEW_STEPS)  # (relative pose, interval s)
-        self._range_scale: tuple | None = None  # (range resolution m, offset m) of the stream's sweeps
+        self._recent_motion.clear()
 
     @property
     def trajectory(self) -> Trajectory:
@@ -428,7 +433,7 @@ class RadarOdometer:
             return None
         dt_s = (ts - self._stamps[-1]) * 1e-6
         if self.max_gap_s is None and dt_s > NEW_SEGMENT_GAP_S:
-            return self._new_segment(scan, prepared, problem, ts, dt_s)
+            return self._new_segment(scan, prepared, problem, ts)
         flags = self._interval_flags(dt_s)
         odo_rel = odometry.relative_pose(dt_s) if odometry is not None else None
         if problem is not None:
@@ -462,15 +467,11 @@ class RadarOdometer:
                 f"{self._range_scale[0]} m from {self._range_scale[1]} m; a radar does not change them mid-recording "
                 "— check the reader's range resolution, or call reset() to start a new stream")
 
-    def _new_segment(self, scan: RadarScan, prepared, problem, ts: int, dt_s: float) -> Estimate:
+    def _new_segment(self, scan: RadarScan, prepared, problem, ts: int) -> Estimate:
         """After a stamp jump beyond `NEW_SEGMENT_GAP_S`: the motion over it is unknown, so the sweep
         is placed at the last pose with the search window's covariance, flagged ``new_segment``,
         and the stream starts afresh from it (velocity, period and de-skew history forgotten)."""
-        self._prior.reset()
-        self._velocity_end_us = None
-        self._odometry_since_ref = None
-        self._period.reset()
-        self._recent_motion.clear()
+        self._forget_motion()
         self._ref_feed = None
         if problem is None:
             self._ref_feed = self._run_first(self._input(scan, prepared, None))

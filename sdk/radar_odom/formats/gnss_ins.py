@@ -318,6 +318,15 @@ def _kinematics(track: GnssInsTrack, half_window_s: float = _DIRECTION_HALF_WIND
     }
 
 
+def _heading_minus_track(track: GnssInsTrack, kinematics: dict, samples) -> tuple[float, np.ndarray]:
+    """(circular mean c rad, ``wrap(heading − track direction − c)`` float64[n]) over ``samples``
+    (a mask or indices): centred on the circular mean first, so a spread around ±π does not split
+    in two; the offset is then ``c`` plus a statistic of the centred values."""
+    diff = wrap_angle(track.heading_rad[samples] - kinematics["direction_rad"][samples])
+    centre = float(np.arctan2(np.mean(np.sin(diff)), np.mean(np.cos(diff))))
+    return centre, wrap_angle(diff - centre)
+
+
 def estimate_heading_offset_rad(
     track: GnssInsTrack,
     min_speed_mps: float = 3.0,
@@ -348,10 +357,7 @@ def estimate_heading_offset_rad(
             f"{min_speed_mps} m/s (need {min_samples}) to compare the INS heading with the track "
             "direction; lower min_speed_mps or use a longer stretch of the drive"
         )
-    diff = wrap_angle(track.heading_rad[use] - k["direction_rad"][use])
-    # centred on the circular mean first, so a spread around ±π does not split in two
-    centre = float(np.arctan2(np.mean(np.sin(diff)), np.mean(np.cos(diff))))
-    around = wrap_angle(diff - centre)
+    centre, around = _heading_minus_track(track, k, use)
     q25, q50, q75 = np.percentile(around, [25, 50, 75])
     return float(wrap_angle(centre + q50)), float(q75 - q25), n
 
@@ -383,9 +389,7 @@ def heading_offset_track_rad(track: GnssInsTrack, min_speed_mps: float = 3.0,
             "of the drive, or give the offset (--gt-heading-offset-deg)"
         )
     t = track.seconds_since_start()
-    diff = wrap_angle(track.heading_rad[moving] - k["direction_rad"][moving])
-    centre = float(np.arctan2(np.mean(np.sin(diff)), np.mean(np.cos(diff))))
-    around = wrap_angle(diff - centre)  # a spread around ±π does not split in two
+    centre, around = _heading_minus_track(track, k, moving)
     tm = t[moving]
     lo = np.searchsorted(tm, tm - half_window_s, side="left")
     hi = np.searchsorted(tm, tm + half_window_s, side="right")
