@@ -533,7 +533,7 @@ def train(
             running = value if running is None else 0.9 * running + 0.1 * value
             steps_log.append([step, value])
             bar.update(1)
-            bar.set_postfix(loss=f"{running:.3g}", lr=f"{lr:.2g}")
+            bar.set_postfix(loss=f"{running:.3g}", lr=f"{lr:.2g}", refresh=False)  # a log gets a line per interval
             # every rank must take the same number of steps, so rank 0's clock decides
             if deadline is not None and d.any(d.main and time.perf_counter() > deadline):
                 stop = True
