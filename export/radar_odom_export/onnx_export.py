@@ -299,7 +299,10 @@ def strip_node_metadata(proto) -> int:
 
 def model_fields(model, form: str, masking: str | None, training_data, state_shape, search=None) -> dict:
     """The facts about ``model`` that `radar_odom.model_file.build_metadata` writes (all but the
-    opset and the exporter, which `write_graph` fills in)."""
+    opset and the exporter, which `write_graph` fills in). A checkpoint from `radar-odom adapt`
+    carries the radar's mount yaw in its training record: the graph carries it on."""
+    adapt = (training_data or {}).get("train", {}).get("adapt", {}) if isinstance(training_data, dict) else {}
+    mount = adapt.get("mount_yaw_rad") if isinstance(adapt, dict) else None
     return dict(
         profile=model.profile, form=form, sweep_geometry=model.sweep_geometry,
         input_shape=sweep_shape(model), state_shape=state_shape,
@@ -307,6 +310,7 @@ def model_fields(model, form: str, masking: str | None, training_data, state_sha
         {"num_bins": model.to_cartesian.num_bins, "bin_factor": model.to_cartesian.bin_factor},
         masking=masking or model.masking, training_data=training_data,
         version=radar_odom.__version__, torch_version=torch.__version__, search=search,
+        mount_yaw_rad=float(mount) if isinstance(mount, (int, float)) and mount else None,
     )
 
 

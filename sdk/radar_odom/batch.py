@@ -28,6 +28,7 @@ from .errors import ConfigError, ModelMismatchError, StreamError
 from .odometer import MIN_COVERAGE, check_sweep_geometry, graph_input, model_region_m, sweep_problem
 from .onnx_model import OnnxModel
 from .scan import RadarScan
+from .se2 import turn_frame
 
 DEFAULT_BATCH = 16  # pairs per graph call; from 4 on the time per pair stopped falling (README)
 
@@ -137,4 +138,9 @@ def match_sequence(model, sweeps: Sequence[RadarScan] | np.ndarray, *, batch: in
     if len(bad):
         raise StreamError(f"the graph gave non-finite poses for pairs {bad[:5].tolist()} (sweeps k, k + 1); "
                           "use RadarOdometer, which replaces such matches by the motion prior")
-    return SequenceMatches(pose, 0.5 * (cov + cov.transpose(0, 2, 1)), stamps)
+    cov = 0.5 * (cov + cov.transpose(0, 2, 1))
+    mount = m.info.mount_yaw_rad
+    if mount:  # the vehicle's poses, as `RadarOdometer` gives them
+        turned = [turn_frame(p, c, mount) for p, c in zip(pose, cov)]
+        pose, cov = np.array([t[0] for t in turned]), np.array([t[1] for t in turned])
+    return SequenceMatches(pose, cov, stamps)

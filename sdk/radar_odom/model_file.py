@@ -32,6 +32,10 @@ The keys (`SCHEMA`; required: always, or for stream-form / polar models only):
 - ``radar_odom.quantization`` (JSON object): how the masker's ``Conv`` nodes were quantised
   (``radar_odom_export.quantize``: scheme, op types, weight/activation types, calibration);
   absent for a float32 graph.
+- ``radar_odom.mount_yaw_rad`` (number): the radar's yaw on its vehicle (rad, the poses' sign
+  convention), found by ``radar-odom adapt``; the runtime turns every match by it
+  (`radar_odom.se2.turn_frame`), so poses are the vehicle's. Absent: 0 (the radar looks along the
+  vehicle's axis; every shipped model).
 - provenance, optional (a file without them reads the `MetadataKey.default` stated below):
   ``radar_odom.masking``, ``radar_odom.training_data``, ``radar_odom.version``,
   ``radar_odom.opset``, ``radar_odom.exporter``, ``radar_odom.torch_version``.
@@ -66,7 +70,7 @@ class MetadataKey:
     """One ``radar_odom.*`` metadata entry: its type, when it is required, what it means."""
 
     key: str
-    kind: str  # "text", "json-object", "json-array", "integer" (as text), "sha256"
+    kind: str  # "text", "json-object", "json-array", "integer" / "number" (as text), "sha256"
     required: str  # "always", "stream" (stream form), "polar" (polar input), "optional"
     doc: str
     default: object = None  # what a file without an optional key reads as
@@ -88,6 +92,8 @@ SCHEMA: tuple[MetadataKey, ...] = (
                 "is scored"),
     MetadataKey("radar_odom.quantization", "json-object", "optional",
                 "int8 quantisation of the masker (scheme, op types, calibration); absent: float32"),
+    MetadataKey("radar_odom.mount_yaw_rad", "number", "optional",
+                "the radar's yaw on its vehicle (rad); matches are turned by it", "0"),
     MetadataKey("radar_odom.masking", "text", "optional", "masking of the model", "unknown"),
     MetadataKey("radar_odom.training_data", "text", "optional", "JSON provenance of the weights", ""),
     MetadataKey("radar_odom.version", "text", "optional", "radar-odom version that exported it", ""),
@@ -201,6 +207,19 @@ class _Validator:
             self.fail(key, f"is {text[:40]!r}, not an integer")
         return int(t)
 
+    def number(self, key: str, low: float, high: float) -> float | None:
+        """A finite number in [low, high], or None where the key is absent."""
+        text = self.meta.get(key)
+        if text is None:
+            return None
+        try:
+            value = float(text)
+        except ValueError:
+            self.fail(key, f"is {text[:40]!r}, not a number")
+        if not (math.isfinite(value) and low <= value <= high):
+            self.fail(key, f"is {value!r}, outside [{low:.4g}, {high:.4g}]")
+        return value
+
     def text(self, key: str) -> str:
         return self.meta.get(key, KEYS[key].default)
 
@@ -268,6 +287,7 @@ class ModelInfo:
     search: dict | None = None  # fast/decoupled search settings ("kind"); None: every yaw candidate is scored
     torch_version: str = ""
     quantization: dict | None = None  # int8 masker settings; None: a float32 graph
+    mount_yaw_rad: float = 0.0  # the radar's yaw on its vehicle (`radar-odom adapt`); 0: along the axis
 
     @classmethod
     def from_metadata(cls, meta: dict[str, str], source: str = "model") -> ModelInfo:
@@ -331,6 +351,7 @@ class ModelInfo:
         opset = v.integer("radar_odom.opset")
         search = v.json("radar_odom.search", dict, required=False)
         quantization = v.json("radar_odom.quantization", dict, required=False)
+        mount_yaw = v.number("radar_odom.mount_yaw_rad", low=-math.pi / 4, high=math.pi / 4)
         return cls(
             profile=profile,
             form=form,
@@ -349,6 +370,7 @@ class ModelInfo:
             search=search,
             torch_version=v.text("radar_odom.torch_version"),
             quantization=quantization,
+            mount_yaw_rad=0.0 if mount_yaw is None else mount_yaw,
         )
 
     @property
@@ -372,7 +394,8 @@ def io_names(profile: GridProfile, form: str) -> tuple[list[str], list[str]]:
 def build_metadata(*, profile: GridProfile, form: str, sweep_geometry: dict, input_shape, state_shape=None,
                    polar_input: dict | None = None, masking: str, training_data="", version: str,
                    opset: int, exporter: str, torch_version: str = "", search: dict | None = None,
-                   quantization: dict | None = None, source: str = "export") -> dict[str, str]:
+                   quantization: dict | None = None, mount_yaw_rad: float | None = None,
+                   source: str = "export") -> dict[str, str]:
     """The ``radar_odom.*`` metadata of a model file, as text, checked by `ModelInfo.from_metadata`
     (so the writer can never write what the runtime refuses: `InvalidModelError` if it would).
 
@@ -407,6 +430,8 @@ def build_metadata(*, profile: GridProfile, form: str, sweep_geometry: dict, inp
         meta["radar_odom.search"] = json.dumps(search, sort_keys=True)
     if quantization is not None:
         meta["radar_odom.quantization"] = json.dumps(quantization, sort_keys=True)
+    if mount_yaw_rad is not None:
+        meta["radar_odom.mount_yaw_rad"] = repr(float(mount_yaw_rad))
     unknown = sorted(set(meta) - set(KEYS))
     if unknown:  # a key added to the writer must be added to the schema first
         raise ValueError(f"metadata keys {unknown} are not in model_file.SCHEMA")

@@ -88,7 +88,7 @@ from .motion_prior import compose as compose_relative
 from .motion_prior import fuse as fuse_estimates
 from .onnx_model import OnnxModel
 from .scan import RadarScan
-from .se2 import invert, se2, to_xyyaw
+from .se2 import invert, se2, to_xyyaw, turn_frame
 from .sweep_checks import (  # noqa: F401  (re-exported: their home was here)
     MIN_COVERAGE,
     NOISE_STRUCTURE,
@@ -129,7 +129,8 @@ class Estimate:
     """One odometry step.
 
     Attributes:
-        pose: float64[3] (x m, y m, yaw rad): the new sweep's frame in the previous sweep's frame.
+        pose: float64[3] (x m, y m, yaw rad): the new sweep's frame in the previous sweep's frame
+            (the vehicle's frames where the model carries a mount yaw, ``radar-odom adapt``).
         covariance: float64[3, 3] over (x, y, yaw), symmetric.
         timestamp_us: the new sweep's timestamp (first azimuth, the Oxford file name).
         flags: empty for a normal match; ``{"degenerate", reason}`` for a prior-only estimate
@@ -520,22 +521,28 @@ class RadarOdometer:
         Where the reference is further back than a gap (`radar_odom.gaps`) and the prior can
         predict the motion, the sweep is drawn in the predicted frame and the measured residual
         composed with the prediction; the new reference is then the sweep in its own frame.
+        Poses leave here in the vehicle's frame: a model with a mount yaw
+        (``ModelInfo.mount_yaw_rad``, `radar-odom adapt`) has its matches turned by it.
         """
+        mount = self.info.mount_yaw_rad
         ref_ts = self._stamps[self._ref_index]
         interval_s = (ts - ref_ts) * 1e-6
         pred = None
         if self._movable and self._period.is_gap(interval_s):
             pred = self._prior.predict(interval_s, self._lead_s(ref_ts))
         if pred is None:
-            return self._run_pair(x)
-        predicted = pred[0]
+            out = self._run_pair(x)
+            if out is None or not mount:
+                return out
+            return (*turn_frame(out[0], out[1], mount), out[2])
+        predicted = turn_frame(pred[0], None, -mount)[0]  # the prediction in the radar's frame
         frame = to_xyyaw(invert(se2(*predicted)))
         moved = self._sweep_input(scan, SweepMotion(twist=twist, frame_pose=tuple(frame)))
         out = self._run_pair(moved, keep_reference=True)
         if out is None:
             return None
         residual, residual_cov, _ = out
-        pose, cov = compose_residual(residual, residual_cov, predicted)
+        pose, cov = turn_frame(*compose_residual(residual, residual_cov, predicted), mount)
         new_ref = x if self.info.form == "pair" else self._run_first(x)
         if not np.all(np.isfinite(new_ref)):
             return None
