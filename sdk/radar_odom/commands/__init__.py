@@ -10,6 +10,7 @@ COMMANDS: list[str] = [
     "demo",
     "train",
     "calibrate",
+    "adapt",
     "simulate",
     "profile",
 ]
