@@ -23,6 +23,7 @@ import numpy as np
 
 def evaluate_onnx(path, specs, threads: int, motion_prior: bool = False, prior_config=None) -> dict:
     from radar_odom.onnx_model import OnnxModel
+    from radar_odom.se2 import turn_frame
     from radar_odom_export.data import build_drives
     from radar_odom_export.evaluate import evaluate_model
 
@@ -40,8 +41,11 @@ def evaluate_onnx(path, specs, threads: int, motion_prior: bool = False, prior_c
             out = model.run({sweep: np.ascontiguousarray(images[k][None]), state_name: state})
             times.append(time.perf_counter() - t0)
             state = out["state"]
-            poses.append(out["pose"].reshape(3).astype(np.float64))
-            covs.append(out["covariance"].reshape(3, 3).astype(np.float64))
+            pose, cov = out["pose"].reshape(3).astype(np.float64), out["covariance"].reshape(3, 3).astype(np.float64)
+            if info.mount_yaw_rad:  # an adapted model's matches, turned as the runtime turns them
+                pose, cov = turn_frame(pose, cov, info.mount_yaw_rad)
+            poses.append(pose)
+            covs.append(cov)
         estimates.append((np.asarray(poses), np.asarray(covs)))
     model_info = SimpleNamespace(profile=info.profile, masking=info.masking)
     result = evaluate_model(model_info, drives, estimates=estimates, timing_repeats=0)
