@@ -152,9 +152,10 @@ class Recording:
     name: str
     scans: list
     timestamps_us: np.ndarray
-    reference: object = None  # the sequence (for its ground truth / GNSS/INS track), or None
+    sequence: object = None  # what `open_recording` gave (for its ground truth / GNSS/INS track)
     skipped: int = 0
     first: int = 0  # index in the recording of its first sweep used (``--sweeps``)
+    poses: np.ndarray | None = None  # float64[N, 3, 3]: the base model's run (pseudo-labels, reference clock)
 
 
 def parse_sweeps(text: str | None) -> slice:
@@ -190,10 +191,10 @@ def read_recording(source, topic: str | None = None, sweeps: slice = slice(None)
     return Recording(Path(source).name, scans, stamps, seq, skipped, indices.start if len(indices) else 0)
 
 
-def runtime_relative(model_path, scans, threads: int | None = None, desc: str = "pseudo-labels") -> np.ndarray:
-    """float64[N − 1, 3]: the relative poses ``radar-odom run`` gives between consecutive
-    ``scans`` (`RadarOdometer` defaults); NaN rows where it had no measurement (a degenerate
-    sweep bridged by the prior, a sweep it skipped)."""
+def run_runtime(model_path, scans, threads: int | None = None, desc: str = "odometry") -> tuple[np.ndarray, np.ndarray]:
+    """``radar-odom run``'s defaults (`RadarOdometer`) over ``scans``: (absolute poses float64[N, 3, 3],
+    relative poses float64[N − 1, 3] between consecutive sweeps, NaN rows where it had no
+    measurement: a degenerate sweep bridged by the prior)."""
     from radar_odom import RadarOdometer
 
     odo = RadarOdometer(model_path, threads=threads)
@@ -202,7 +203,12 @@ def runtime_relative(model_path, scans, threads: int | None = None, desc: str = 
         est = odo.step(scan)  # every step after the first: the sweep in the previous one's frame
         if est is not None and not est.degenerate:
             rel[k - 1] = est.pose
-    return rel
+    return np.asarray(odo.trajectory.poses, dtype=np.float64), rel
+
+
+def has_reference(seq) -> bool:
+    """Whether a recording carries ground truth or a GNSS/INS track (`reference_kitti` can score)."""
+    return getattr(seq, "gt_relative", None) is not None or getattr(seq, "reference", None) is not None
 
 
 def self_consistency(model_path, scans, threads: int | None = None) -> dict:
@@ -301,9 +307,7 @@ def reference_kitti(rec: Recording, start: int, runs: dict, whole_poses: np.ndar
     from radar_odom.run import gnss_reference
     from radar_odom.se2 import chain_relative
 
-    seq = rec.reference
-    if seq is None:
-        return {}, "no reference in the recording"
+    seq = rec.sequence
     try:
         if getattr(seq, "gt_relative", None) is not None:
             if rec.skipped:
@@ -311,11 +315,9 @@ def reference_kitti(rec: Recording, start: int, runs: dict, whole_poses: np.ndar
             first = rec.first + start
             gt = chain_relative(np.asarray(seq.gt_relative, dtype=np.float64)[first: rec.first + len(rec.scans) - 1])
             note = "the recording's own ground truth"
-        elif getattr(seq, "reference", None) is not None:
+        else:
             _, info, _ = gnss_reference(seq.reference, rec.timestamps_us, whole_poses)
             gt, _, note = gnss_reference(seq.reference, rec.timestamps_us[start:], None, info["clock_offset_s"])
-        else:
-            return {}, "no reference in the recording"
         length_m = float(path_lengths_m(gt)[-1])
         lengths = kitti_lengths_for(length_m)
         if lengths is None:
@@ -331,16 +333,6 @@ def reference_kitti(rec: Recording, start: int, runs: dict, whole_poses: np.ndar
         return out, note
     except (RadarOdomError, ValueError) as exc:
         return {}, f"reference not used: {exc}"
-
-
-def runtime_poses(model_path, scans, threads, desc) -> np.ndarray:
-    """Absolute poses float64[N, 3, 3] of ``radar-odom run``'s defaults over ``scans``."""
-    from radar_odom import RadarOdometer
-
-    odo = RadarOdometer(model_path, threads=threads)
-    for scan in progress(scans, desc=desc, unit="sweep"):
-        odo.step(scan)
-    return np.asarray(odo.trajectory.poses, dtype=np.float64)
 
 
 def adapt(recordings, output, cfg: AdaptConfig, topic: str | None = None, sweeps: slice = slice(None)) -> dict:
@@ -375,7 +367,7 @@ def adapt(recordings, output, cfg: AdaptConfig, topic: str | None = None, sweeps
     recs = [read_recording(r, topic, sweeps) for r in recordings]
     drives, held = [], []
     for rec in recs:
-        rel = runtime_relative(base_onnx, rec.scans, threads, desc=f"pseudo-labels {rec.name}")
+        rec.poses, rel = run_runtime(base_onnx, rec.scans, threads, desc=f"pseudo-labels {rec.name}")
         labels = vehicle_chord(rel) if cfg.vehicle_prior else rel
         cut = holdout_split(len(rec.scans), cfg.holdout_fraction)
         images = np.stack([scan_to_cartesian(s, profile).astype(np.float16)
@@ -415,7 +407,7 @@ def adapt(recordings, output, cfg: AdaptConfig, topic: str | None = None, sweeps
     if cfg.vehicle_prior:
         mounts["base"] = mount_yaw_from(np.concatenate([r.rel[: r.cut - 1] for r in recs]))
         mounts["fine-tuned"] = mount_yaw_from(np.concatenate(
-            [runtime_relative(tuned, r.scans[: r.cut], threads, desc=f"mount yaw {r.name}") for r in recs]))
+            [run_runtime(tuned, r.scans[: r.cut], threads, desc=f"mount yaw {r.name}")[1] for r in recs]))
     files = {"base": base_mounted, "fine-tuned": tuned}
     for name, path in files.items():
         if mounts[name] is not None:
@@ -443,12 +435,13 @@ def adapt(recordings, output, cfg: AdaptConfig, topic: str | None = None, sweeps
         why = check_collapse(sc["shipped"], sc["fine-tuned"])
         if why:
             refused.append(f"{rec.name}: {why}")
-        if rec.reference is not None:
-            whole = runtime_poses(base_onnx, rec.scans, threads, desc=f"reference clock {rec.name}")
-            runs = {"shipped": runtime_poses(base_onnx, held_scans, threads, desc="held out, shipped"),
-                    **{name: runtime_poses(path, held_scans, threads, desc=f"held out, {name}")
+        if has_reference(rec.sequence):
+            runs = {"shipped": run_runtime(base_onnx, held_scans, threads, desc="held out, shipped")[0],
+                    **{name: run_runtime(path, held_scans, threads, desc=f"held out, {name}")[0]
                        for name, path in files.items()}}
-            entry["kitti"], entry["reference"] = reference_kitti(rec, rec.cut, runs, whole)
+            entry["kitti"], entry["reference"] = reference_kitti(rec, rec.cut, runs, rec.poses)
+        else:
+            entry["reference"] = "no reference in the recording"
         report["recordings"].append(entry)
     choice, reason = choose_masker(consistency, cfg.keep, refused)
     report.update(kept=choice, kept_because=reason, refused=refused, wall_s=time.perf_counter() - t0)
