@@ -295,3 +295,22 @@ def torch_equal(a, b) -> bool:
     import torch
 
     return bool(torch.equal(a, b))
+
+
+@pytest.mark.slow
+@pytest.mark.torch
+def test_adapt_reads_a_ros_bag_as_run_does(sim_drive, small_checkpoint, tmp_path):
+    pytest.importorskip("rosbags")
+    from test_bags import write_bag
+
+    from radar_odom.formats import read_sequence
+    from radar_odom_export.adapt import adapt
+
+    seq = read_sequence(sim_drive)
+    bag = write_bag(tmp_path / "drive.mcap", [seq.scan(i) for i in range(len(seq))], kind="bscan")
+    cfg = AdaptConfig(base=str(small_checkpoint), minutes=0.05, epochs=1, sim_seeds=(1000,), sim_frames=6,
+                      sim_scenarios=("urban",), threads=1)
+    report = adapt([bag], tmp_path / "from-bag.onnx", cfg)
+    rec = report["recordings"][0]
+    assert rec["name"] == "drive.mcap" and rec["sweeps"] == 24 and rec["reference"] == "no reference in the recording"
+    assert (tmp_path / "from-bag.onnx").is_file()
