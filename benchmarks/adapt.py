@@ -50,24 +50,19 @@ def skip_scales(model_name: str, max_skip: int = 3) -> None:
 
     from radar_odom import pretrained
     from radar_odom.formats import read_sequence
-    from radar_odom.onnx_model import OnnxModel
     from radar_odom.run import gnss_reference
     from radar_odom.se2 import invert, to_xyyaw
-    from radar_odom.sweep_input import graph_input
+    from radar_odom_export.adapt import stream_matcher
 
     seq = read_sequence(DRIVE)
     scans = [f.scan for f in seq]
     ref_poses, _, _ = real_drive.run_model(pretrained(model_name), scans, deskew=False)
     gt, _, _ = gnss_reference(seq.reference, seq.timestamps_us, ref_poses)
-    m = OnnxModel(pretrained(model_name), threads=2)
-    x_name, s_name = m.info.inputs
-    xs = [graph_input(s, m.info) for s in scans]
-    zero = np.zeros(m.info.state_shape, np.float32)
-    states = [m.run({x_name: x, s_name: zero})["state"] for x in xs]
+    match = stream_matcher(pretrained(model_name), scans, threads=2)
     print(f"{model_name}, graph alone, pairs k → k + s of the shared drive against its GNSS/INS reference:")
     for s in range(1, max_skip + 1):
-        k = np.arange(len(xs) - s)
-        est = np.array([np.asarray(m.run({x_name: xs[i + s], s_name: states[i]})["pose"], float).reshape(3) for i in k])
+        k = np.arange(len(scans) - s)
+        est = np.array([match(i, i + s) for i in k])
         true = to_xyyaw(invert(gt[k]) @ gt[k + s])
         ok = np.hypot(true[:, 0], true[:, 1]) > 0.5 * s
         scale = float((est[ok, :2] * true[ok, :2]).sum() / (true[ok, :2] ** 2).sum())

@@ -192,6 +192,9 @@ def test_turn_frame_is_the_conjugation_by_the_mount():
     back, back_cov = turn_frame(turned, turned_cov, -m)
     np.testing.assert_allclose(back, pose, atol=1e-12)
     np.testing.assert_allclose(back_cov, cov, atol=1e-15)
+    many, many_cov = turn_frame(np.stack([pose, back]), np.stack([cov, back_cov]), m)  # batches: row by row
+    np.testing.assert_allclose(many, np.stack([turned, turned]), atol=1e-12)
+    np.testing.assert_allclose(many_cov, np.stack([turned_cov, turned_cov]), atol=1e-15)
 
 
 @pytest.mark.torch

@@ -211,35 +211,42 @@ def has_reference(seq) -> bool:
     return getattr(seq, "gt_relative", None) is not None or getattr(seq, "reference", None) is not None
 
 
-def self_consistency(model_path, scans, threads: int | None = None) -> dict:
-    """How well a model's own matches agree, on ``scans`` (no reference needed).
-
-    With the stream graph alone (no motion prior): A→C against A→B ∘ B→C over every triplet of
-    consecutive sweeps. Returns ``composition_t_m`` / ``composition_yaw_deg`` (RMS of the
-    difference, m / °), ``skip2_scale`` (|A→C| / |A→B ∘ B→C|, mean over moving triplets: 1 for
-    a matcher whose step does not depend on how far it is), ``mean_step_m`` (mean length of the
-    consecutive matches) and ``direction_deg` (`direction_bias_deg` of them).
-    """
+def stream_matcher(model_path, scans, threads: int | None = None):
+    """``match(a, b) -> float64[3]``: the stream graph's own pose of sweep ``b`` in sweep ``a``'s
+    frame (no motion prior), in the vehicle's frame where the model carries a mount yaw, as the
+    runtime gives it. Every sweep's graph input and state are made once, up front."""
     from radar_odom.onnx_model import OnnxModel
     from radar_odom.sweep_input import graph_input
 
     m = OnnxModel(model_path, threads=threads)
     info = m.info
     if info.form != "stream":
-        raise ConfigError(f"{model_path}: self-consistency is measured with a stream-form model, not {info.form}")
+        raise ConfigError(f"{model_path}: pairs are matched with a stream-form model, not {info.form}")
     x_name, s_name = info.inputs
     zero = np.zeros(info.state_shape, dtype=np.float32)
     xs = [graph_input(s, info) for s in scans]
     states = [m.run({x_name: x, s_name: zero})["state"] for x in xs]
 
     def match(a: int, b: int) -> np.ndarray:
-        return np.asarray(m.run({x_name: xs[b], s_name: states[a]})["pose"], dtype=np.float64).reshape(3)
+        pose = np.asarray(m.run({x_name: xs[b], s_name: states[a]})["pose"], dtype=np.float64).reshape(3)
+        return turn_frame(pose, None, info.mount_yaw_rad)[0] if info.mount_yaw_rad else pose
 
-    one = np.array([match(k, k + 1) for k in range(len(xs) - 1)])
-    two = np.array([match(k, k + 2) for k in range(len(xs) - 2)])
-    if info.mount_yaw_rad:  # the vehicle's poses, as the runtime gives them
-        one = np.array([turn_frame(p, None, info.mount_yaw_rad)[0] for p in one])
-        two = np.array([turn_frame(p, None, info.mount_yaw_rad)[0] for p in two])
+    return match
+
+
+def self_consistency(model_path, scans, threads: int | None = None) -> dict:
+    """How well a model's own matches agree, on ``scans`` (no reference needed).
+
+    With the stream graph alone (`stream_matcher`): A→C against A→B ∘ B→C over every triplet of
+    consecutive sweeps. Returns ``composition_t_m`` / ``composition_yaw_deg`` (RMS of the
+    difference, m / °), ``skip2_scale`` (|A→C| / |A→B ∘ B→C|, mean over moving triplets: 1 for
+    a matcher whose step does not depend on how far it is), ``mean_step_m`` (mean length of the
+    consecutive matches) and ``direction_deg` (`direction_bias_deg` of them).
+    """
+    match = stream_matcher(model_path, scans, threads)
+    n = len(scans)
+    one = np.array([match(k, k + 1) for k in range(n - 1)])
+    two = np.array([match(k, k + 2) for k in range(n - 2)])
     composed = to_xyyaw(se2_batch(one[:-1]) @ se2_batch(one[1:]))
     diff = to_xyyaw(invert(se2_batch(composed)) @ se2_batch(two))
     moving = np.hypot(composed[:, 0], composed[:, 1]) > 1.0

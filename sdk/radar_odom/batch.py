@@ -141,6 +141,5 @@ def match_sequence(model, sweeps: Sequence[RadarScan] | np.ndarray, *, batch: in
     cov = 0.5 * (cov + cov.transpose(0, 2, 1))
     mount = m.info.mount_yaw_rad
     if mount:  # the vehicle's poses, as `RadarOdometer` gives them
-        turned = [turn_frame(p, c, mount) for p, c in zip(pose, cov)]
-        pose, cov = np.array([t[0] for t in turned]), np.array([t[1] for t in turned])
+        pose, cov = turn_frame(pose, cov, mount)
     return SequenceMatches(pose, cov, stamps)

@@ -57,18 +57,20 @@ def compose(*ts: np.ndarray) -> np.ndarray:
 
 
 def turn_frame(pose_xyyaw, covariance, angle_rad: float):
-    """(pose, covariance) of a relative pose re-expressed in frames turned by ``-angle_rad``: the
-    translation turned by ``angle_rad``, the yaw kept, the 3×3 covariance rotated with it.
+    """(pose, covariance) of relative poses re-expressed in frames turned by ``-angle_rad``: the
+    translation turned by ``angle_rad``, the yaw kept, the covariance rotated with it.
 
-    A radar mounted at yaw ``m`` on its vehicle (same origin) measures ``T_radar``; the vehicle's
-    relative pose is ``M T_radar M⁻¹`` with ``M = se2(0, 0, m)``: ``turn_frame(pose, cov, m)``.
+    ``pose_xyyaw``: float[3] or [N, 3]; ``covariance``: float[3, 3] or [N, 3, 3], or None (then None
+    is returned for it). A radar mounted at yaw ``m`` on its vehicle (same origin) measures
+    ``T_radar``; the vehicle's relative pose is ``M T_radar M⁻¹`` with ``M = se2(0, 0, m)``:
+    ``turn_frame(pose, cov, m)``.
     """
-    pose = np.array(pose_xyyaw, dtype=np.float64).reshape(3)
+    pose = np.asarray(pose_xyyaw, dtype=np.float64)
     c, s = np.cos(angle_rad), np.sin(angle_rad)
     j = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    out = j @ pose
-    out[2] = pose[2]
-    cov = None if covariance is None else j @ np.asarray(covariance, dtype=np.float64).reshape(3, 3) @ j.T
+    out = pose @ j.T
+    out[..., 2] = pose[..., 2]
+    cov = None if covariance is None else j @ np.asarray(covariance, dtype=np.float64) @ j.T
     return out, cov
 
 
