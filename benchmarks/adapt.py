@@ -49,8 +49,8 @@ def skip_scales(model_name: str, max_skip: int = 3) -> None:
     import real_drive
 
     from radar_odom import pretrained
-    from radar_odom.formats import read_sequence
-    from radar_odom.run import gnss_reference
+    from radar_odom.evaluation.reference import gnss_reference
+    from radar_odom.io import read_sequence
     from radar_odom.se2 import invert, to_xyyaw
     from radar_odom_export.adapt import stream_matcher
 

@@ -55,8 +55,8 @@ def main(argv=None) -> int:
         print(f"{args.drive}: no RADIATE recording with GPS_IMU_Twist/ there (the shared real data?)", file=sys.stderr)
         return 2
     from radar_odom import RadarOdometer, pretrained
-    from radar_odom.formats import read_sequence
-    from radar_odom.run import gnss_reference
+    from radar_odom.evaluation.reference import gnss_reference
+    from radar_odom.io import read_sequence
     from radar_odom.se2 import relative_from_absolute
 
     seq = read_sequence(args.drive)

@@ -22,7 +22,7 @@ import numpy as np
 
 
 def graph_inputs(info, frames: int, seed: int) -> np.ndarray:
-    from radar_odom.odometer import graph_input
+    from radar_odom.odometry.odometer import graph_input
     from radar_odom.sim.simulator import simulate_drive
 
     return np.stack([graph_input(f.scan, info)[0] for f in simulate_drive(seed, frames, "urban")])

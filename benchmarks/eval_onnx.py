@@ -85,7 +85,7 @@ def main(argv=None) -> int:
     results = {"command": " ".join(sys.argv)}
     prior_config = None
     if args.report_prior_scale is not None:
-        from radar_odom.motion_prior import MotionPriorConfig
+        from radar_odom.odometry.motion_prior import MotionPriorConfig
 
         prior_config = MotionPriorConfig(report_prior_scale=args.report_prior_scale)
     for path in args.models:

@@ -20,9 +20,9 @@ once with de-skew off and once on. Rows:
 
 Reference: the GNSS/INS track aligned once, for every row alike: the INS heading turned onto the
 GNSS track with its offset followed in time, the clock offset estimated from the default model's run (de-skew off),
-both printed (`radar_odom.run.gnss_reference`). Score: KITTI translational (%) and rotational
-(°/m) error, segments of 50–400 m (`radar_odom.metrics.kitti_lengths_for`), a segment every 4
-sweeps, pooled over segments; and per pair (`radar_odom.metrics.step_biases`): the step scale
+both printed (`radar_odom.evaluation.reference.gnss_reference`). Score: KITTI translational (%) and rotational
+(°/m) error, segments of 50–400 m (`radar_odom.evaluation.metrics.kitti_lengths_for`), a segment every 4
+sweeps, pooled over segments; and per pair (`radar_odom.evaluation.metrics.step_biases`): the step scale
 (Σ estimated / Σ reference step length over pairs moving ≥ 1 m), the direction of the estimated
 translation against the reference's on straight pairs (median, + = to the sensor's +y, right),
 the RMS yaw error per pair while moving and while standing still, the yaw slope over pairs turning
@@ -85,7 +85,7 @@ def run_model(model, scans, deskew: bool, with_estimates: bool = False):
 def covariance_fit(gt, est, estimates, profile) -> dict:
     """Mean and median d² of the estimates' covariances against the reference's relative poses
     (non-degenerate steps; χ²(3): mean 3, median 2.37) and the share above χ²(3)'s 95 % point."""
-    from radar_odom.metrics import covariance_jitter, mahalanobis_sq
+    from radar_odom.evaluation.metrics import covariance_jitter, mahalanobis_sq
     from radar_odom.se2 import relative_from_absolute
 
     gt_rel, est_rel = relative_from_absolute(gt), relative_from_absolute(est)
@@ -113,7 +113,7 @@ def score(gt, est, estimates=None) -> dict:
     """KITTI figures and per-pair biases of absolute poses ``est`` against ``gt``; with the run's
     `radar_odom.Estimate` list, the graph's own matches (``Estimate.measurement``, before the motion
     prior) give ``"graph"``: their yaw slope and exact-zero share (the yaw pull, `step_biases`)."""
-    from radar_odom.metrics import kitti_lengths_for, kitti_metrics, path_lengths_m, step_biases
+    from radar_odom.evaluation.metrics import kitti_lengths_for, kitti_metrics, path_lengths_m, step_biases
     from radar_odom.se2 import relative_from_absolute
 
     lengths = kitti_lengths_for(path_lengths_m(gt)[-1])
@@ -173,9 +173,9 @@ def main(argv=None) -> int:
         print(f"{args.drive}: no RADIATE recording with GPS_IMU_Twist/ there (the shared real data?)", file=sys.stderr)
         return 2
     from radar_odom import pretrained, pretrained_names
-    from radar_odom.formats import read_sequence
+    from radar_odom.evaluation.reference import gnss_reference
+    from radar_odom.io import read_sequence
     from radar_odom.model_zoo import default_model_name
-    from radar_odom.run import gnss_reference
 
     seq = read_sequence(args.drive)
     scans = [f.scan for f in seq]

@@ -75,7 +75,7 @@ def stream_poses(step, model, drive, use_labels: bool):
 
 
 def accuracy(poses_by_drive, drives, lengths) -> dict:
-    from radar_odom.metrics import kitti_metrics, relative_pose_errors
+    from radar_odom.evaluation.metrics import kitti_metrics, relative_pose_errors
     from radar_odom.se2 import chain_relative
 
     gt = [chain_relative(d.poses_rel.astype(np.float64)) for d in drives]

@@ -88,8 +88,8 @@ def main(argv=None) -> int:
     import cv2
     import torch
 
+    from radar_odom.odometry.sweep_input import SweepMotion, graph_input
     from radar_odom.sim.simulator import simulate_drive
-    from radar_odom.sweep_input import SweepMotion, graph_input
     from radar_odom_export.checkpoint import load_checkpoint, resolve_checkpoint
     from radar_odom_export.correlation import polar_rotator
 

@@ -11,13 +11,13 @@ Four parts (``--parts``), each a table; every model runs as `radar_odom.RadarOdo
 * ``curves``: simulated drives on a steady bend (`DriveConfig.constant_curvature_per_m`, 10 m/s,
   4 Hz) at each ``--rates`` yaw rate (°/sweep) in each ``--scenarios`` world; after the bend's
   ramp-in, the estimated/true yaw (Σ est·true / Σ true²) and the share of pairs read as exactly
-  0 yaw (`radar_odom.metrics.EXACT_ZERO_RAD`). An unbiased matcher reads 1.00 and no zeros.
+  0 yaw (`radar_odom.evaluation.metrics.EXACT_ZERO_RAD`). An unbiased matcher reads 1.00 and no zeros.
 * ``common-turn``: both sweeps of a pair drawn turned by the same angle c (``--turns``, °; a
   frame turned about the sensor, `SweepMotion(frame_pose=(0, 0, c))`): the pair's relative
   motion does not change, so neither should its estimated yaw. Per pair, the spread (max − min)
   of the estimated yaw over c, on simulated curve pairs (seed 5150, pairs 34–39: 0.36–0.64 °),
   the real Oxford pair and ten real RADIATE pairs; the table gives the largest spread.
-* ``radiate``: the shared RADIATE city drive against its GNSS/INS (`radar_odom.run.gnss_reference`:
+* ``radiate``: the shared RADIATE city drive against its GNSS/INS (`radar_odom.evaluation.reference.gnss_reference`:
   clock offset estimated from the default model's run, heading turned onto the track):
   KITTI-style error, step scale, yaw slope over pairs turning > 0.2°, exact-zero share.
 * ``oxford``: the shared real Oxford pair (one pair, ground truth yaw +0.10°): estimated x and yaw.
@@ -75,7 +75,7 @@ def estimates(model, scans, prior: bool) -> np.ndarray:
 
 def yaw_stats(gt: np.ndarray, est: np.ndarray) -> tuple[float, float]:
     """(estimated/true yaw, exact-zero share) of relative poses."""
-    from radar_odom.metrics import step_biases
+    from radar_odom.evaluation.metrics import step_biases
 
     b = step_biases(gt, est, turning_deg=0.05)
     return b["yaw_slope"], b["exact_zero_share"]
@@ -101,8 +101,8 @@ def part_curves(models: dict, args) -> list[str]:
 def turned_yaws(model, first, second, turns_deg) -> np.ndarray:
     """float64[len(turns)]: the graph's relative yaw (rad) of ``second`` against ``first`` with both
     sweeps drawn in a frame turned by each common angle."""
+    from radar_odom.odometry.sweep_input import SweepMotion, graph_input
     from radar_odom.onnx_model import OnnxModel
-    from radar_odom.sweep_input import SweepMotion, graph_input
 
     graph = OnnxModel(model, threads=None)
     info = graph.info
@@ -121,7 +121,7 @@ def turned_yaws(model, first, second, turns_deg) -> np.ndarray:
 
 def common_turn_pairs(args):
     """{source: [(first, second), …]} for the common-turn test."""
-    from radar_odom.formats import read_sequence
+    from radar_odom.io import read_sequence
 
     pairs = {}
     scans, _ = curve_scans_seed5150()
@@ -168,10 +168,10 @@ def skipped(name: str) -> list[str]:
 
 def part_radiate(models: dict, args) -> list[str]:
     from radar_odom import pretrained
-    from radar_odom.formats import read_sequence
-    from radar_odom.metrics import kitti_lengths_for, kitti_metrics, path_lengths_m, step_biases
+    from radar_odom.evaluation.metrics import kitti_lengths_for, kitti_metrics, path_lengths_m, step_biases
+    from radar_odom.evaluation.reference import gnss_reference
+    from radar_odom.io import read_sequence
     from radar_odom.model_zoo import default_model_name
-    from radar_odom.run import gnss_reference
     from radar_odom.se2 import relative_from_absolute
 
     drive = real_recording(RADIATE_DRIVE)
@@ -200,7 +200,7 @@ def part_radiate(models: dict, args) -> list[str]:
 def part_oxford(models: dict, args) -> list[str]:
     import csv
 
-    from radar_odom.formats import read_sequence
+    from radar_odom.io import read_sequence
 
     seq_dir = real_recording(OXFORD_PAIR)
     if seq_dir is None:

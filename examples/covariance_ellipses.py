@@ -52,7 +52,7 @@ def main(argv=None) -> int:
 
     from radar_odom import RadarOdometer
     from radar_odom._progress import progress
-    from radar_odom.metrics import mahalanobis_sq
+    from radar_odom.evaluation.metrics import mahalanobis_sq
     from radar_odom.model_zoo import resolve_model
     from radar_odom.se2 import wrap_angle
     from radar_odom.sim import simulate_drive

@@ -33,7 +33,7 @@ def main(argv=None) -> int:
     import matplotlib.pyplot as plt
     import torch
 
-    from radar_odom.formats import read_sequence
+    from radar_odom.io import read_sequence
     from radar_odom_export.checkpoint import load_checkpoint
     from radar_odom_export.data import scan_to_cartesian
 

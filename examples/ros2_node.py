@@ -9,10 +9,10 @@ sensor_msgs/CompressedImage PNG, ``bscan`` = navtech_msgs/msg/RadarBScanMsg, whi
 Navtech driver's ``navtech_msgs`` package sourced), ``model`` (shipped name or .onnx path),
 ``range_resolution_m``, ``sweep_period_s``, ``stamp`` (first | middle | last), ``odom_topic``,
 ``odom_frame``, ``base_frame``, ``publish_tf``. Frames follow REP-103/105 (see
-`radar_odom.ros_msgs`); the pose covariance is the step's, in the odom frame's axes.
+`radar_odom.ros.msgs`); the pose covariance is the step's, in the odom frame's axes.
 
-Not run in CI (no ROS there): everything but the rclpy calls is `radar_odom.ros_stream` and
-`radar_odom.ros_msgs`, tested without ROS.
+Not run in CI (no ROS there): everything but the rclpy calls is `radar_odom.ros.stream` and
+`radar_odom.ros.msgs`, tested without ROS.
 """
 from __future__ import annotations
 
@@ -24,8 +24,8 @@ MSG_TYPES = {
 
 
 def fill_odometry(msg, fields, odom_frame: str, base_frame: str):
-    """Copy `radar_odom.ros_msgs.OdometryFields` into a ``nav_msgs/msg/Odometry``."""
-    from radar_odom.ros_msgs import split_ns
+    """Copy `radar_odom.ros.msgs.OdometryFields` into a ``nav_msgs/msg/Odometry``."""
+    from radar_odom.ros.msgs import split_ns
 
     msg.header.stamp.sec, msg.header.stamp.nanosec = split_ns(fields.stamp_ns)
     msg.header.frame_id, msg.child_frame_id = odom_frame, base_frame
@@ -42,7 +42,7 @@ def fill_odometry(msg, fields, odom_frame: str, base_frame: str):
 
 def fill_transform(tf, fields, odom_frame: str, base_frame: str):
     """Copy the pose of `OdometryFields` into a ``geometry_msgs/msg/TransformStamped``."""
-    from radar_odom.ros_msgs import split_ns
+    from radar_odom.ros.msgs import split_ns
 
     tf.header.stamp.sec, tf.header.stamp.nanosec = split_ns(fields.stamp_ns)
     tf.header.frame_id, tf.child_frame_id = odom_frame, base_frame
@@ -64,8 +64,8 @@ def main(args=None) -> None:
     from radar_odom import RadarOdometer
     from radar_odom.errors import RadarOdomError
     from radar_odom.model_zoo import resolve_model
-    from radar_odom.ros_msgs import PolarImageGeometry
-    from radar_odom.ros_stream import RosOdometryStream
+    from radar_odom.ros.msgs import PolarImageGeometry
+    from radar_odom.ros.stream import RosOdometryStream
 
     class RadarOdometryNode(Node):
         def __init__(self):

@@ -89,7 +89,7 @@ def fast_learned_model() -> Path:
 
 @pytest.fixture(scope="session")
 def sequence_model() -> Path:
-    """`fast_learned_model`'s model (same seeded weights) in the sequence form (`radar_odom.batch`)."""
+    """`fast_learned_model`'s model (same seeded weights) in the sequence form (`radar_odom.odometry.batch`)."""
     return fixture_file("small-fast-seq.onnx")
 
 

@@ -79,7 +79,7 @@ def sim_drive(tmp_path_factory):
 
 
 def test_self_consistency_of_a_model_on_simulated_sweeps(sim_drive, cli_model):
-    from radar_odom.formats import read_sequence
+    from radar_odom.io import read_sequence
     from radar_odom_export.adapt import self_consistency
 
     seq = read_sequence(sim_drive)
@@ -135,7 +135,7 @@ def test_adapt_writes_model_checkpoint_and_report(sim_drive, small_checkpoint, t
     ckpt = read_checkpoint_dict(out.with_suffix(".pt"))
     assert ckpt["train"]["adapted_from"] == "small.pt" and ckpt["train"]["adapt"]["vehicle_prior"] is True
     odo = RadarOdometer(out)
-    from radar_odom.formats import read_sequence
+    from radar_odom.io import read_sequence
 
     seq = read_sequence(sim_drive)
     for i in range(3):
@@ -145,7 +145,7 @@ def test_adapt_writes_model_checkpoint_and_report(sim_drive, small_checkpoint, t
 
 @pytest.mark.torch
 def test_adapt_refuses_bad_requests_before_any_work(sim_drive, small_checkpoint, tmp_path):
-    from radar_odom.cli import main
+    from radar_odom.commands.cli import main
     from radar_odom_export.adapt import adapt
 
     with pytest.raises(ConfigError, match=r"\.onnx"):
@@ -205,7 +205,7 @@ def test_a_mount_yaw_in_the_file_turns_every_match(sim_drive, tmp_path):
     from conftest import fixture_file
 
     from radar_odom import RadarOdometer
-    from radar_odom.formats import read_sequence
+    from radar_odom.io import read_sequence
     from radar_odom.onnx_model import OnnxModel
     from radar_odom.se2 import turn_frame
     from radar_odom_export.adapt import set_mount_yaw
@@ -306,7 +306,7 @@ def test_adapt_reads_a_ros_bag_as_run_does(sim_drive, small_checkpoint, tmp_path
     pytest.importorskip("rosbags")
     from test_bags import write_bag
 
-    from radar_odom.formats import read_sequence
+    from radar_odom.io import read_sequence
     from radar_odom_export.adapt import adapt
 
     seq = read_sequence(sim_drive)

@@ -24,9 +24,9 @@ from radar_odom.errors import (
     ScanFormatError,
     StreamError,
 )
-from radar_odom.formats import load_scan, read_sequence, write_scan
+from radar_odom.io import load_scan, read_sequence, write_scan
 from radar_odom.model_zoo import UnknownModelError, pretrained, pretrained_names
-from radar_odom.odometer import RadarOdometer, azimuth_coverage, sweep_problem, window_covariance
+from radar_odom.odometry.odometer import RadarOdometer, azimuth_coverage, sweep_problem, window_covariance
 from radar_odom.onnx_model import ModelInfo, OnnxModel, profile_digest
 from radar_odom.scan import RadarScan
 
@@ -426,7 +426,7 @@ def test_skip_records_a_flagged_prior_pose_and_bridges(odo_factory, drive4):
 
 # --------------------------------------------------------------------------- 7. ground truth
 def oxford_recording(tmp_path, n=6, rows=None):
-    from radar_odom.formats import oxford_gt_rows, write_oxford_ground_truth
+    from radar_odom.io import oxford_gt_rows, write_oxford_ground_truth
 
     ts = [T0_US + k * 250_000 for k in range(n)]
     for t in ts:
@@ -452,7 +452,7 @@ def test_a_nan_ground_truth_row_is_reported_by_line_and_costs_one_pair(tmp_path)
         seq = read_sequence(tmp_path)
     ok = np.isfinite(seq.gt_relative).all(axis=1)
     assert ok.tolist() == [True, True, False, True, True]
-    from radar_odom.run import evaluate, format_metrics
+    from radar_odom.evaluation.report import evaluate, format_metrics
     from radar_odom.se2 import chain_relative
 
     est = chain_relative(np.tile([1.1, 0.0, 0.01], (5, 1)))
@@ -493,7 +493,7 @@ def test_an_implausible_ground_truth_row_costs_one_pair_not_the_run(tmp_path, co
 
 
 def test_zup_pose_files_drop_nan_and_conflicting_rows_by_line(tmp_path):
-    from radar_odom.formats._csv import read_numeric_csv
+    from radar_odom.io._csv import read_numeric_csv
 
     p = tmp_path / "poses.csv"
     p.write_text("t,a,b\n1,0.0,0.0\n2,nan,0.0\n3,1.0,1.0\n3,2.0,2.0\n4,1.0,1.0\n4,1.0,1.0\n5,5.0,5.0\n")
@@ -521,7 +521,7 @@ def test_pretrained_takes_names_not_paths(name, tmp_path):
 def test_pose_files_with_infinite_stamps_are_a_typed_error(tmp_path):
     """Found by the fuzz suite: a stamp 'INF' raised OverflowError from float → int."""
     from radar_odom.errors import SequenceError
-    from radar_odom.formats._csv import read_numeric_csv
+    from radar_odom.io._csv import read_numeric_csv
 
     p = tmp_path / "poses.csv"
     for text in ("INF\n", "1e400,1,2\n", "1,2\nnan,3\n"):
@@ -531,7 +531,7 @@ def test_pose_files_with_infinite_stamps_are_a_typed_error(tmp_path):
 
 
 def test_demo_with_output_a_file_is_a_one_line_error(tmp_path, capsys):
-    from radar_odom.cli import main
+    from radar_odom.commands.cli import main
 
     taken = tmp_path / "taken"
     taken.write_text("x")

@@ -1,4 +1,4 @@
-"""ROS bags in and out (`radar_odom.formats.bag`, `radar_odom.bag_out`, ``radar-odom run BAG``).
+"""ROS bags in and out (`radar_odom.io.bag`, `radar_odom.io.bag_out`, ``radar-odom run BAG``).
 
 Bags are written here with rosbags from simulated sweeps and from the real Oxford sweeps (in
 tmp_path; the real sweeps never enter the repository), then run like the PNG folders they came
@@ -14,12 +14,12 @@ rosbags = pytest.importorskip("rosbags", reason="the ros extra (rosbags) is not 
 from rosbags.highlevel import AnyReader  # noqa: E402
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore  # noqa: E402
 
-from radar_odom.cli import main  # noqa: E402
+from radar_odom.commands.cli import main  # noqa: E402
+from radar_odom.commands.run_sequence import read_estimates_csv, run_sequence  # noqa: E402
 from radar_odom.errors import ScanFormatError, SequenceError  # noqa: E402
-from radar_odom.formats import load_scan, read_sequence  # noqa: E402
-from radar_odom.formats.bag import open_bag, read_bag  # noqa: E402
-from radar_odom.ros_msgs import NAVTECH_BSCAN_MSGDEF, NAVTECH_BSCAN_MSGTYPE, UNOBSERVED_VARIANCE  # noqa: E402
-from radar_odom.run import read_estimates_csv, run_sequence  # noqa: E402
+from radar_odom.io import load_scan, read_sequence  # noqa: E402
+from radar_odom.io.bag import open_bag, read_bag  # noqa: E402
+from radar_odom.ros.msgs import NAVTECH_BSCAN_MSGDEF, NAVTECH_BSCAN_MSGTYPE, UNOBSERVED_VARIANCE  # noqa: E402
 
 FRAMES = 5
 OXFORD_PAIR = "oxford-2019-01-10-14-36-48"

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from radar_odom import ModelMismatchError, RadarOdometer, StreamError, match_sequence
-from radar_odom.batch import sequence_inputs
 from radar_odom.errors import ConfigError
 from radar_odom.model_file import InvalidModelError, ModelInfo, check_signature
+from radar_odom.odometry.batch import sequence_inputs
 from radar_odom.onnx_model import OnnxModel
 
 FRAMES = 9

@@ -2,11 +2,12 @@
 import numpy as np
 import pytest
 
-from radar_odom.cli import main
-from radar_odom.formats import read_sequence
-from radar_odom.run import evaluate, format_metrics, read_estimates_csv
+from radar_odom.commands.cli import main
+from radar_odom.commands.run_sequence import read_estimates_csv
+from radar_odom.evaluation.report import evaluate, format_metrics
+from radar_odom.evaluation.trajectory import read_kitti, read_tum
+from radar_odom.io import read_sequence
 from radar_odom.se2 import chain_relative
-from radar_odom.trajectory import read_kitti, read_tum
 
 FRAMES = 6
 
@@ -110,7 +111,7 @@ def test_evaluate_gives_kitti_metrics_on_a_long_enough_drive():
 
 
 def test_kitti_lengths_fit_the_drive():
-    from radar_odom.metrics import KITTI_LENGTHS_M, kitti_lengths_for
+    from radar_odom.evaluation.metrics import KITTI_LENGTHS_M, kitti_lengths_for
 
     assert kitti_lengths_for(445.0) == (50, 100, 150, 200, 250, 300, 350, 400)
     assert kitti_lengths_for(200.0) == (20, 40, 60, 80, 100, 120, 140, 160)

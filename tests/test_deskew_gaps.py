@@ -12,8 +12,8 @@ import pytest
 from test_odometer import PERIOD_US, T0_US, drive, render_scan, world_points
 
 from radar_odom import polar as P
-from radar_odom.gaps import GAP, SweepPeriod, compose_residual
-from radar_odom.odometer import RadarOdometer
+from radar_odom.odometry.gaps import GAP, SweepPeriod, compose_residual
+from radar_odom.odometry.odometer import RadarOdometer
 from radar_odom.scan import RadarScan
 from radar_odom.se2 import invert, se2, to_xyyaw
 

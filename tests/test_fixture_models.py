@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from radar_odom.errors import ModelMismatchError
-from radar_odom.odometer import RadarOdometer
+from radar_odom.odometry.odometer import RadarOdometer
 from radar_odom.onnx_model import OnnxModel
 
 from fixtures import FIXTURES, GEOM, MODELS
@@ -48,7 +48,7 @@ def test_every_fixture_is_committed_and_small():
 @pytest.mark.parametrize("name", sorted(MODELS))
 def test_fixture_loads_in_this_runtime_with_its_profile(name):
     profile, form, geometry, masking, search = MODELS[name]
-    try:  # the sequence form is for radar_odom.batch, not the odometer
+    try:  # the sequence form is for radar_odom.odometry.batch, not the odometer
         model = OnnxModel(FIXTURES[name], threads=1) if form == "sequence" else \
             RadarOdometer(FIXTURES[name], threads=1)._model
     except ModelMismatchError as e:  # a schema change the files predate

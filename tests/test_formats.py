@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from radar_odom import RadarScan, ScanFormatError, load_scan, write_scan
-from radar_odom.formats import detect_format
+from radar_odom.io import detect_format
 
 T0_US = 1547131046353776  # an Oxford sweep name
 TWO_PI = 2 * math.pi

@@ -28,9 +28,9 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from radar_odom.errors import RadarOdomError
-from radar_odom.formats import load_scan, write_scan
+from radar_odom.io import load_scan, write_scan
 from radar_odom.model_zoo import pretrained, pretrained_names
-from radar_odom.odometer import RadarOdometer, model_region_m, window_covariance
+from radar_odom.odometry.odometer import RadarOdometer, model_region_m, window_covariance
 from radar_odom.onnx_model import ModelInfo, OnnxModel
 from radar_odom.scan import RadarScan
 
@@ -293,9 +293,9 @@ def test_metadata_schema_takes_any_edit(edits):
 @fuzz(1000)
 @given(st.text(max_size=300), st.sampled_from(["oxford", "csv", "radiate"]))
 def test_ground_truth_and_time_files_take_any_text(text, kind):
-    from radar_odom.formats._csv import read_numeric_csv
-    from radar_odom.formats.oxford import read_oxford_ground_truth
-    from radar_odom.formats.radiate import parse_radiate_times
+    from radar_odom.io._csv import read_numeric_csv
+    from radar_odom.io.oxford import read_oxford_ground_truth
+    from radar_odom.io.radiate import parse_radiate_times
 
     path = _ROOT / f"gt-{kind}.csv"
     header = "source_radar_timestamp,destination_radar_timestamp,x,y,yaw\n" if kind == "oxford" else ""
@@ -319,7 +319,7 @@ file_names = st.text(
 @fuzz(300)
 @given(st.sampled_from(["radar", "Navtech_Polar", "polar"]), st.lists(file_names, min_size=1, max_size=4, unique=True))
 def test_recording_folders_take_any_file_names(folder, names):
-    from radar_odom.formats import read_sequence
+    from radar_odom.io import read_sequence
 
     root = Path(tempfile.mkdtemp(prefix="seq-", dir=_ROOT))
     try:

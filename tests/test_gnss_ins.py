@@ -1,4 +1,4 @@
-"""RADIATE GNSS/INS reference (`radar_odom.formats.gnss_ins`): reading, east-north-up, the INS
+"""RADIATE GNSS/INS reference (`radar_odom.io.gnss_ins`): reading, east-north-up, the INS
 heading offset, poses at radar times in the Oxford convention, and the clock offset.
 
 Synthetic ``GPS_IMU_Twist`` folders are written into tmp_path from a known trajectory (samples
@@ -14,8 +14,8 @@ import pytest
 
 from radar_odom import SequenceError
 from radar_odom.errors import ConfigError, GroundTruthWarning
-from radar_odom.formats import read_sequence
-from radar_odom.formats.gnss_ins import (
+from radar_odom.io import read_sequence
+from radar_odom.io.gnss_ins import (
     ClockOffset,
     GnssInsTrack,
     enu_from_geodetic,

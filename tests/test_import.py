@@ -6,8 +6,8 @@ def test_import_radar_odom_never_imports_torch():
     code = (
         "import sys, radar_odom\n"
         "from radar_odom import *\n"
-        "import radar_odom.cli\n"
-        "radar_odom.cli.build_parser()\n"
+        "import radar_odom.commands.cli\n"
+        "radar_odom.commands.cli.build_parser()\n"
         "bad = [m for m in sys.modules if m == 'torch' or m.startswith('torch.')]\n"
         "assert not bad, bad\n"
     )
@@ -28,7 +28,7 @@ def test_pretrained_is_the_function_and_no_module_shadows_it():
         "import importlib, pkgutil, radar_odom\n"
         "names = [m.name for m in pkgutil.iter_modules(radar_odom.__path__)]\n"
         "assert 'pretrained' not in names, names\n"
-        "import radar_odom.model_zoo, radar_odom.odometer, radar_odom.demo\n"
+        "import radar_odom.model_zoo, radar_odom.odometry.odometer, radar_odom.commands.run_demo\n"
         "assert callable(radar_odom.pretrained), radar_odom.pretrained\n"
         "from radar_odom import pretrained\n"
         "assert callable(pretrained)\n"
@@ -107,15 +107,72 @@ def test_cycle_finder_finds_a_cycle():
 
 def test_no_import_cycles_in_the_project():
     graph = _module_graph()
-    assert "radar_odom_export.onnx_export" in graph and "radar_odom.odometer" in graph
+    assert "radar_odom_export.onnx_export" in graph and "radar_odom.odometry.odometer" in graph
     assert "radar_odom_export.fast_search" in graph["radar_odom_export.onnx_export"]
     assert _cycles(graph) == []
+
+
+# ------------------------------------------------------------------ the folders are layers (issue 31)
+# folder -> the other folders it may import (docs/ARCHITECTURE.md, "Who imports whom"); every
+# folder may import the shared vocabulary (the package's top-level modules)
+ALLOWED_FOLDERS = {
+    "odometry": {"io"},      # pipeline.iter_estimates reads a folder it is given
+    "io": {"ros"},           # bags: messages converted by ros.msgs
+    "ros": {"io"},           # the PNG header reader of io._layout
+    "evaluation": {"io"},    # the GNSS/INS reference through io.gnss_ins
+    "latency": {"odometry", "io", "evaluation", "sim"},  # profiles on simulated sweeps
+    "sim": {"io", "evaluation"},
+    "commands": {"odometry", "io", "ros", "evaluation", "latency", "sim"},
+}
+
+
+def _folder(mod: str) -> str | None:
+    """'odometry' for radar_odom.odometry.x, None for a top-level (shared vocabulary) module."""
+    parts = mod.split(".")
+    if parts[0] != "radar_odom" or len(parts) < 2:
+        return None
+    return parts[1] if parts[1] in ALLOWED_FOLDERS else None
+
+
+def _layering_violations(graph: dict[str, set[str]]) -> list[str]:
+    """Imports across runtime folders that ALLOWED_FOLDERS does not list, and imports of a folder
+    from the shared vocabulary (the entry point ``radar_odom.__main__`` aside)."""
+    wrong = []
+    for mod, deps in graph.items():
+        if not mod.startswith("radar_odom.") or mod == "radar_odom.__main__":
+            continue
+        here = _folder(mod)
+        for dep in sorted(deps):
+            there = _folder(dep)
+            if there is None or there == here:
+                continue
+            if here is None:
+                wrong.append(f"{mod} (shared vocabulary) imports {dep}")
+            elif there not in ALLOWED_FOLDERS[here]:
+                wrong.append(f"{mod} ({here}/) imports {dep} ({there}/)")
+    return wrong
+
+
+def test_runtime_folders_import_only_what_the_architecture_allows():
+    graph = _module_graph()
+    assert {_folder(m) for m in graph} >= set(ALLOWED_FOLDERS)
+    assert _layering_violations(graph) == []
+
+
+def test_the_layering_check_sees_a_wrong_import():
+    assert _layering_violations({
+        "radar_odom.odometry.odometer": {"radar_odom.commands.run_sequence", "radar_odom.scan", "radar_odom.io"},
+        "radar_odom.scan": {"radar_odom.odometry.odometer"},
+        "radar_odom.__main__": {"radar_odom.commands.cli"},
+        "radar_odom.io.bag": {"radar_odom.ros.msgs"},
+    }) == ["radar_odom.odometry.odometer (odometry/) imports radar_odom.commands.run_sequence (commands/)",
+           "radar_odom.scan (shared vocabulary) imports radar_odom.odometry.odometer"]
 
 
 def test_every_command_help_prints_no_doubled_percent():
     """Descriptions use RawDescriptionHelpFormatter, which leaves '%%' as typed (issue 24 found
     `train --help` printing "20%%"); every subcommand's help must read as written."""
-    from radar_odom.cli import build_parser
+    from radar_odom.commands.cli import build_parser
 
     parser = build_parser()
     sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")

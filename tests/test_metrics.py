@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from radar_odom import metrics as M
+from radar_odom.evaluation import metrics as M
 from radar_odom.se2 import chain_relative, se2
 
 # Frames 1 + 1e-9 m apart: a segment of L frames covers L·(1 + 1e-9) m > L, so it ends exactly

@@ -8,7 +8,7 @@ drive.
 import numpy as np
 import pytest
 
-from radar_odom.motion_prior import (
+from radar_odom.odometry.motion_prior import (
     CHI2_3DOF_999,
     GATED,
     PRIOR_DOMINATED,
@@ -383,7 +383,7 @@ def cart08():
 
 
 def test_odometer_fuses_by_default_and_exposes_the_raw_measurement(cart08, sim_frames):
-    from radar_odom.odometer import RadarOdometer
+    from radar_odom.odometry.odometer import RadarOdometer
 
     on = RadarOdometer(cart08, threads=1)
     off = RadarOdometer(cart08, threads=1, motion_prior=False)
@@ -421,7 +421,7 @@ def test_odometer_fuses_by_default_and_exposes_the_raw_measurement(cart08, sim_f
 
 
 def test_odometer_degenerate_sweep_uses_the_prior_and_external_odometry_is_fused(cart08, sim_frames):
-    from radar_odom.odometer import RadarOdometer, window_covariance
+    from radar_odom.odometry.odometer import RadarOdometer, window_covariance
     from radar_odom.scan import RadarScan
 
     s = sim_frames[3].scan
@@ -454,7 +454,7 @@ def test_odometer_degenerate_sweep_uses_the_prior_and_external_odometry_is_fused
 
 
 def test_motion_prior_argument_is_checked(cart08):
-    from radar_odom.odometer import RadarOdometer
+    from radar_odom.odometry.odometer import RadarOdometer
 
     cfg = MotionPriorConfig(gate_d2=25.0)
     assert RadarOdometer(cart08, threads=1, motion_prior=cfg).motion_prior is cfg
@@ -467,7 +467,7 @@ def test_motion_prior_argument_is_checked(cart08):
 def test_run_command_switches_the_prior_off(cart08, tmp_path, capsys):
     import csv
 
-    from radar_odom.cli import main
+    from radar_odom.commands.cli import main
     from radar_odom.sim import write_drive
 
     drive = write_drive(tmp_path / "drive", seed=5007, frames=4, progress=False)

@@ -275,7 +275,7 @@ def test_exported_cfar_model_matches_torch_in_onnxruntime(trained_cfar, tmp_path
     normalisation and the mask inside, torch parity on a real-looking pair at two gains."""
     import onnx
 
-    from radar_odom.cli import main
+    from radar_odom.commands.cli import main
     from radar_odom.onnx_model import OnnxModel
     from radar_odom_export.checkpoint import load_checkpoint
     from radar_odom_export.fast_search import FastStreamStep

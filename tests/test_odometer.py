@@ -14,7 +14,7 @@ import pytest
 
 from radar_odom.errors import ModelMismatchError, StreamError
 from radar_odom.model_zoo import UnknownModelError, pretrained, pretrained_names
-from radar_odom.odometer import Estimate, RadarOdometer, sweep_problem, window_covariance
+from radar_odom.odometry.odometer import Estimate, RadarOdometer, sweep_problem, window_covariance
 from radar_odom.onnx_model import count_physical_cores, physical_cores
 from radar_odom.profiles import GridProfile
 from radar_odom.scan import RadarScan

@@ -187,7 +187,7 @@ def test_stream_and_pair_forms_give_the_same_poses(exports, mode):
 
 
 def test_polar_model_exports_and_the_runtime_reduces_sweeps_as_documented(tmp_path):
-    from radar_odom.odometer import RadarOdometer
+    from radar_odom.odometry.odometer import RadarOdometer
     from radar_odom.scan import RadarScan
 
     profile = TINY.with_(name="tiny-polar", input_kind="polar", unet_depth=2)
@@ -217,7 +217,7 @@ def test_polar_model_exports_and_the_runtime_reduces_sweeps_as_documented(tmp_pa
 
 
 def test_export_command_from_a_checkpoint(tmp_path, capsys):
-    from radar_odom.cli import main
+    from radar_odom.commands.cli import main
     from radar_odom_export.checkpoint import save_checkpoint
 
     model = seeded_model(TINY.with_(beta_cov=0.37))
@@ -233,7 +233,7 @@ def test_export_command_from_a_checkpoint(tmp_path, capsys):
 
 
 def test_export_command_writes_the_fast_search_when_asked(tmp_path, capsys):
-    from radar_odom.cli import main
+    from radar_odom.commands.cli import main
     from radar_odom_export.checkpoint import save_checkpoint
 
     # 13 yaws, a step that divides the full turn (the polar rotator needs it): the band is narrower
@@ -254,7 +254,7 @@ def test_export_command_writes_the_fast_search_when_asked(tmp_path, capsys):
 def test_export_command_picks_the_fast_search_for_the_sequence_form(tmp_path, monkeypatch):
     """--form sequence alone asks for the fast search (the only one it has); the export itself is
     tested on the committed sequence fixture (test_fixture_models)."""
-    from radar_odom.cli import main
+    from radar_odom.commands.cli import main
 
     asked = []
     monkeypatch.setattr(onnx_export, "export_checkpoint",
@@ -267,7 +267,7 @@ def test_export_command_picks_the_fast_search_for_the_sequence_form(tmp_path, mo
 
 
 def test_export_command_reports_a_bad_checkpoint(tmp_path, capsys):
-    from radar_odom.cli import main
+    from radar_odom.commands.cli import main
 
     bad = tmp_path / "bad.pt"
     bad.write_bytes(b"not a checkpoint")

@@ -90,7 +90,7 @@ def test_shipped_model_tracks_a_held_out_urban_drive(name):
     Held-out seed (>= 5000, never used in training or calibration); 12 sweeps, ~1 s to simulate.
     A broken export (wrong weights, sign or axis) gives errors of the order of the motion.
     """
-    from radar_odom.odometer import RadarOdometer
+    from radar_odom.odometry.odometer import RadarOdometer
     from radar_odom.sim.simulator import Simulator
 
     odo = RadarOdometer(radar_odom.pretrained(name), threads=1)
@@ -114,7 +114,7 @@ def test_a_model_with_a_fair_yaw_zero_reads_a_one_bin_rotation(name):
     scores yaw 0 on the image itself read it as 0.000° (README, Limitations)."""
     import dataclasses
 
-    from radar_odom.odometer import RadarOdometer
+    from radar_odom.odometry.odometer import RadarOdometer
     from radar_odom.sim.simulator import Simulator
 
     info = OnnxModel(radar_odom.pretrained(name), threads=1).info

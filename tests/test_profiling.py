@@ -232,7 +232,7 @@ def tiny_model(fast_learned_model, tmp_path_factory):
 
 @pytest.mark.slow
 def test_profile_command_end_to_end(tiny_model, tmp_path, capsys):
-    from radar_odom.cli import main
+    from radar_odom.commands.cli import main
 
     out = tmp_path / "prof"
     args = ["profile", "--models", str(tiny_model), "--profiles", "--steps", "6", "--warmup", "1",

@@ -156,7 +156,7 @@ def test_schema_quantization_key_is_an_optional_object(fast_learned_model):
 def test_export_command_quantize_int8(tmp_path, monkeypatch, drives, capsys):
     """``radar-odom export CKPT --search fast --quantize int8``: the fp32 export (verified against
     torch), then the quantised file (verified against it); the temporary fp32 file is gone."""
-    from radar_odom.cli import main
+    from radar_odom.commands.cli import main
     from radar_odom_export import quantize
     from radar_odom_export.checkpoint import save_checkpoint
     from radar_odom_export.model import MaskedCorrelator

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from radar_odom import ScanFormatError, SequenceError, load_scan, read_sequence
-from radar_odom.formats import FORMATS, detect_format
-from radar_odom.formats.radiate import (
+from radar_odom.io import FORMATS, detect_format
+from radar_odom.io.radiate import (
     AGREE,
     DECIMAL,
     NANOSECONDS,

@@ -23,11 +23,12 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from radar_odom.cli import main
-from radar_odom.gaps import GAP
-from radar_odom.run import evaluate, read_estimates_csv
+from radar_odom.commands.cli import main
+from radar_odom.commands.run_sequence import read_estimates_csv
+from radar_odom.evaluation.report import evaluate
+from radar_odom.evaluation.trajectory import read_kitti, read_tum
+from radar_odom.odometry.gaps import GAP
 from radar_odom.se2 import chain_relative, relative_from_absolute
-from radar_odom.trajectory import read_kitti, read_tum
 
 DRIVE_NAME = "radiate-2019-02-12-edinburgh"
 SWEEPS = 280
@@ -86,7 +87,7 @@ def _yaw_steps(poses: np.ndarray) -> np.ndarray:
 def drive_run(drive, tmp_path_factory):
     """``radar-odom run DRIVE -o OUT`` (defaults: shipped model, auto offsets, plot): its exit status,
     stdout, and the `RunResult` that `run_sequence` handed to the CLI (recorded on the way)."""
-    import radar_odom.run as run_module
+    import radar_odom.commands.run_sequence as run_module
 
     out = tmp_path_factory.mktemp("real-drive") / "out"
     results = []
@@ -112,7 +113,7 @@ def test_default_model_covariance_is_honest_on_the_held_out_stretch(drive_run):
     80 sweeps (never calibrated or trained on): d² close to χ²(3) (median 2.37, 5 % above 7.81).
     Measured with this release's calibration (sim + the drive's first 200 sweeps): median 2.58,
     10 % above; with the simulation-only calibration of the release before: median 18.2, 67 %."""
-    from radar_odom.metrics import covariance_jitter, mahalanobis_sq
+    from radar_odom.evaluation.metrics import covariance_jitter, mahalanobis_sq
 
     r = drive_run.result
     gt_rel, est_rel = relative_from_absolute(r.gt_poses), relative_from_absolute(r.poses)
@@ -220,8 +221,8 @@ def test_real_drive_azimuths_turn_the_way_the_ins_heading_turns(drive_run):
 def test_real_mirrored_sweeps_turn_the_estimate_against_the_reference(drive, tmp_path):
     """The reader itself, not a mirrored pose: the same 40 sweeps (frames 341–380, a 35° left turn)
     with their azimuth columns reversed turn the estimate the other way."""
+    from radar_odom.commands.run_sequence import run_sequence
     from radar_odom.model_zoo import default_model_name, resolve_model
-    from radar_odom.run import run_sequence
 
     seq = _stretch(drive, tmp_path / "mirrored", range(341, 381), mirror=True)
     r = run_sequence(seq, resolve_model(default_model_name()), tmp_path / "out", show_progress=False, plot=False,
@@ -270,9 +271,9 @@ def test_real_hole_in_a_turn_is_crossed_and_bridged_by_the_right_distance(drive,
 
 @pytest.mark.real
 def test_real_reference_takes_given_offsets_as_given(drive):
-    from radar_odom.formats import read_sequence
-    from radar_odom.formats.gnss_ins import estimate_heading_offset_rad, poses_at
-    from radar_odom.run import gnss_reference
+    from radar_odom.evaluation.reference import gnss_reference
+    from radar_odom.io import read_sequence
+    from radar_odom.io.gnss_ins import estimate_heading_offset_rad, poses_at
 
     seq = read_sequence(drive)
     track, ts = seq.reference, seq.timestamps_us

@@ -1,4 +1,4 @@
-"""`radar_odom.ros_msgs`: ROS messages ↔ sweeps and odometry, tested without ROS or rosbags (plain
+"""`radar_odom.ros.msgs`: ROS messages ↔ sweeps and odometry, tested without ROS or rosbags (plain
 namespaces stand in for messages), so these run in the torch-free floors job too."""
 import sys
 from types import SimpleNamespace as NS
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from radar_odom.errors import MissingExtraError, ScanFormatError
-from radar_odom.ros_msgs import (
+from radar_odom.ros.msgs import (
     UNOBSERVED_VARIANCE,
     PolarImageGeometry,
     covariance_6x6,
@@ -134,8 +134,8 @@ def test_odometry_fields_are_rep103_with_the_step_covariance():
 
 
 def test_bags_without_rosbags_name_the_extra(monkeypatch, tmp_path):
-    from radar_odom.bag_out import write_odometry_bag
-    from radar_odom.formats.bag import open_bag
+    from radar_odom.io.bag import open_bag
+    from radar_odom.io.bag_out import write_odometry_bag
 
     monkeypatch.setitem(sys.modules, "rosbags", None)
     for mod in [m for m in sys.modules if m.startswith("rosbags.")]:
@@ -170,7 +170,7 @@ def test_ros_stream_and_the_node_example_turn_radar_messages_into_odometry(cli_m
     from pathlib import Path
 
     from radar_odom import RadarOdometer
-    from radar_odom.ros_stream import RosOdometryStream
+    from radar_odom.ros.stream import RosOdometryStream
     from radar_odom.sim.simulator import Simulator
 
     spec = importlib.util.spec_from_file_location(
@@ -209,7 +209,7 @@ def test_an_image_whose_size_fields_undercount_its_data_is_refused():
     from types import SimpleNamespace
 
     from radar_odom.errors import ScanFormatError
-    from radar_odom.ros_msgs import image_pixels
+    from radar_odom.ros.msgs import image_pixels
 
     img = np.arange(40 * 10, dtype=np.uint8).reshape(40, 10)
     msg = SimpleNamespace(encoding="mono8", height=20, width=10, step=10, is_bigendian=0, data=img.reshape(-1))
@@ -225,7 +225,7 @@ def test_a_compressed_png_declaring_a_huge_image_is_refused_before_decoding():
     from types import SimpleNamespace
 
     from radar_odom.errors import ScanFormatError
-    from radar_odom.ros_msgs import compressed_pixels
+    from radar_odom.ros.msgs import compressed_pixels
 
     ihdr = struct.pack(">IIBBBBB", 65536, 65536, 8, 0, 0, 0, 0)
     head = b"\x89PNG\r\n\x1a\n" + struct.pack(">I", 13) + b"IHDR" + ihdr + struct.pack(">I", zlib.crc32(b"IHDR" + ihdr))

@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import pytest
 from test_radiate import write_radiate
 
-from radar_odom.cli import main
+from radar_odom.commands.cli import main
 
 
 @pytest.fixture
@@ -70,7 +70,7 @@ def test_a_bag_that_fails_after_the_odometry_is_a_warning(radiate_with_gnss, tin
                                                           monkeypatch):
     if importlib.util.find_spec("rosbags") is None:
         pytest.skip("needs rosbags (the ros or dev extra)")
-    import radar_odom.run as run_mod
+    import radar_odom.commands.run_sequence as run_mod
     from radar_odom.errors import OutputError
 
     def full_disk(*args, **kwargs):
@@ -207,7 +207,7 @@ def test_a_stamp_jump_no_prediction_can_bridge_starts_a_new_segment(cli_model):
     import numpy as np
 
     from radar_odom import RadarOdometer
-    from radar_odom.gaps import NEW_SEGMENT, NEW_SEGMENT_GAP_S
+    from radar_odom.odometry.gaps import NEW_SEGMENT, NEW_SEGMENT_GAP_S
     from radar_odom.sim.simulator import simulate_drive
 
     scans = [f.scan for f in simulate_drive(4, 6, "urban")]

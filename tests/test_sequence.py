@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from radar_odom import RadarScan, ScanFormatError, SequenceError, read_sequence, write_scan
-from radar_odom.formats import oxford_gt_rows, write_oxford_ground_truth, write_radar_timestamps
+from radar_odom.io import oxford_gt_rows, write_oxford_ground_truth, write_radar_timestamps
 from radar_odom.se2 import chain_relative
 
 T0 = 1547131046353776

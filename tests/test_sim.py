@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from radar_odom.formats import read_sequence
+from radar_odom.io import read_sequence
 from radar_odom.polar import polar_to_cartesian
 from radar_odom.se2 import chain_relative
 from radar_odom.sim import (

@@ -642,7 +642,7 @@ def test_recorded_sequence_becomes_a_drive_cut_at_missing_ground_truth(recording
     monkeypatch.setenv("RADAR_ODOM_CACHE", str(tmp_path / "cache"))
     (drive,) = D.sequence_drives(recordings[0], TINY)
     assert drive.images.shape == (6, 64, 64) and drive.images.dtype == np.float16
-    from radar_odom.formats import read_sequence
+    from radar_odom.io import read_sequence
 
     np.testing.assert_allclose(drive.poses_rel, read_sequence(recordings[0]).gt_relative, atol=1e-5)
     assert drive.path_length_m() > 1.0
@@ -659,7 +659,7 @@ def test_recorded_sequence_becomes_a_drive_cut_at_missing_ground_truth(recording
 def test_cli_trains_on_recordings_holding_out_the_last_folder(recordings, tmp_path, monkeypatch):
     from dataclasses import asdict
 
-    from radar_odom.cli import main
+    from radar_odom.commands.cli import main
 
     monkeypatch.setenv("RADAR_ODOM_CACHE", str(tmp_path / "cache"))
     prof = tmp_path / "tiny.json"
@@ -694,7 +694,7 @@ def test_cli_writes_a_cfar_checkpoint_without_training(recordings, tmp_path, mon
     `radar-odom export` takes (tests/test_normalise.py exports one)."""
     from dataclasses import asdict
 
-    from radar_odom.cli import main
+    from radar_odom.commands.cli import main
 
     monkeypatch.setenv("RADAR_ODOM_CACHE", str(tmp_path / "cache"))
     prof = tmp_path / "tiny.json"
@@ -716,7 +716,7 @@ def test_cli_commands_need_torch_only_when_run():
     import sys
 
     code = (
-        "import sys, radar_odom.cli as c; p = c.build_parser(); "
+        "import sys, radar_odom.commands.cli as c; p = c.build_parser(); "
         "p.parse_args(['train', '-o', 'x.pt']); p.parse_args(['calibrate', 'x.pt']); "
         "assert not [m for m in sys.modules if m.split('.')[0] == 'torch']"
     )

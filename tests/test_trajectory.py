@@ -4,8 +4,8 @@ import math
 import numpy as np
 import pytest
 
+from radar_odom.evaluation.trajectory import read_kitti, read_tum, write_kitti, write_tum
 from radar_odom.se2 import chain_relative, se2
-from radar_odom.trajectory import read_kitti, read_tum, write_kitti, write_tum
 
 T0 = 1547131046353776
 

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from radar_odom import metrics as M
+from radar_odom.evaluation import metrics as M
 from radar_odom.profiles import GridProfile, get_profile
 
 

@@ -172,9 +172,9 @@ def parse_sweeps(text: str | None) -> slice:
 
 
 def read_recording(source, topic: str | None = None, sweeps: slice = slice(None)) -> Recording:
-    """The readable sweeps ``sweeps`` of a recording folder or bag (`radar_odom.run.open_recording`);
+    """The readable sweeps ``sweeps`` of a recording folder or bag (`radar_odom.commands.run_sequence.open_recording`);
     unreadable ones are counted and left out (a gap the runtime crosses)."""
-    from radar_odom.run import open_recording
+    from radar_odom.commands.run_sequence import open_recording
 
     seq = open_recording(source, topic)
     scans, skipped = [], 0
@@ -215,8 +215,8 @@ def stream_matcher(model_path, scans, threads: int | None = None):
     """``match(a, b) -> float64[3]``: the stream graph's own pose of sweep ``b`` in sweep ``a``'s
     frame (no motion prior), in the vehicle's frame where the model carries a mount yaw, as the
     runtime gives it. Every sweep's graph input and state are made once, up front."""
+    from radar_odom.odometry.sweep_input import graph_input
     from radar_odom.onnx_model import OnnxModel
-    from radar_odom.sweep_input import graph_input
 
     m = OnnxModel(model_path, threads=threads)
     info = m.info
@@ -310,8 +310,8 @@ def reference_kitti(rec: Recording, start: int, runs: dict, whole_poses: np.ndar
     ``start:``) against the recording's reference, and a one-line note; ({}, why) without one.
     A GNSS/INS track is aligned in clock on ``whole_poses`` (the shipped runtime over every sweep)
     and in heading as ``radar-odom run`` aligns it."""
-    from radar_odom.metrics import kitti_lengths_for, kitti_metrics, path_lengths_m, step_biases
-    from radar_odom.run import gnss_reference
+    from radar_odom.evaluation.metrics import kitti_lengths_for, kitti_metrics, path_lengths_m, step_biases
+    from radar_odom.evaluation.reference import gnss_reference
     from radar_odom.se2 import chain_relative
 
     seq = rec.sequence

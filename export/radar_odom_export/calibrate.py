@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from radar_odom import metrics
+from radar_odom.evaluation import metrics
 from radar_odom.errors import RadarOdomError
 from radar_odom.profiles import GridProfile
 

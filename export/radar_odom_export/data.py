@@ -307,7 +307,7 @@ def sequence_drives(seq_dir, profile: GridProfile, root: Path | None = None, use
     recording is cut there, so one folder may give several drives (``name[0]``, ``name[1]``...).
     Raises `SequenceError` when no two consecutive sweeps have ground truth.
     """
-    from radar_odom.formats import read_sequence
+    from radar_odom.io import read_sequence
 
     seq_dir = Path(seq_dir)
     cache = _sequence_cache_path(profile, seq_dir, root)

@@ -2,7 +2,7 @@
 
 For each drive the model estimates every consecutive pair (the pose at ``beta_pose``, the
 covariance at ``beta_cov``); estimates are chained into a trajectory (`se2.chain_relative`)
-and scored with `radar_odom.metrics.kitti_metrics` against the chained ground truth. Mean d²
+and scored with `radar_odom.evaluation.metrics.kitti_metrics` against the chained ground truth. Mean d²
 uses the jittered inverse calibration uses too (`mahalanobis_sq`).
 
 Single-mode Cartesian models are run the way a stream runs them: each sweep is masked, rotated
@@ -21,12 +21,12 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from radar_odom import metrics
+from radar_odom.evaluation import metrics
 from radar_odom.se2 import chain_relative
 
 
 def covariance_jitter(profile) -> np.ndarray:
-    """float64[3]: the diagonal added to Σ̄ before inversion (`radar_odom.metrics.covariance_jitter`)."""
+    """float64[3]: the diagonal added to Σ̄ before inversion (`radar_odom.evaluation.metrics.covariance_jitter`)."""
     return metrics.covariance_jitter(profile.resolution_m, profile.rotation_step_rad)
 
 
@@ -38,7 +38,7 @@ def pose_errors(gt_xyyaw: np.ndarray, mean_xyyaw: np.ndarray) -> np.ndarray:
 
 
 def mahalanobis_sq(err: np.ndarray, cov: np.ndarray, jitter_diag: np.ndarray | None = None) -> np.ndarray:
-    """float64[P]: ``eᵀ (Σ + diag(jitter))⁻¹ e`` (`radar_odom.metrics.mahalanobis_sq`, the one the
+    """float64[P]: ``eᵀ (Σ + diag(jitter))⁻¹ e`` (`radar_odom.evaluation.metrics.mahalanobis_sq`, the one the
     runtime reports)."""
     return metrics.mahalanobis_sq(err, cov, jitter_diag)
 
@@ -98,10 +98,10 @@ def runtime_per_pair_ms(model, images: np.ndarray, repeats: int = 20, warmup: in
 
 def with_motion_prior(poses: np.ndarray, covs: np.ndarray, dt_s: float = 0.25,
                       config=None) -> tuple[np.ndarray, np.ndarray]:
-    """The runtime's motion prior (`radar_odom.motion_prior.MotionPrior`, default settings or
+    """The runtime's motion prior (`radar_odom.odometry.motion_prior.MotionPrior`, default settings or
     ``config``, a `MotionPriorConfig`) run over a drive's measurements in order: fused poses
     float64[P, 3] and reported covariances [P, 3, 3]."""
-    from radar_odom.motion_prior import MotionPrior
+    from radar_odom.odometry.motion_prior import MotionPrior
 
     prior = MotionPrior(config)
     out_p, out_c = [], []
@@ -125,7 +125,7 @@ def evaluate_model(model, drives: Sequence, step: int = 4, lengths=(100, 200), p
     `MotionPriorConfig` for the prior (default: the runtime's).
     """
     from radar_odom._progress import progress
-    from radar_odom.metrics import kitti_metrics
+    from radar_odom.evaluation.metrics import kitti_metrics
 
     jitter = covariance_jitter(model.profile)
     gt_abs, est_abs, d2_all, per_drive, raw_estimates = [], [], [], [], []

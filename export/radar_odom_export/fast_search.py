@@ -343,7 +343,7 @@ class FastSequenceStep(nn.Module):
     """``sweeps [T, ...] → (poses [T − 1, 3], covariances [T − 1, 3, 3])``: every consecutive pair
     of a batch of sweeps, matched as `FastStreamStep` matches a stream's (same numbers).
 
-    The offline form (``radar_odom.batch``): T sweeps in one call, each masked and transformed
+    The offline form (``radar_odom.odometry.batch``): T sweeps in one call, each masked and transformed
     once (as in a stream), all T − 1 pairs searched together, so onnxruntime runs a few large
     operators instead of T − 1 small steps. Pose k is sweep k + 1 in sweep k's frame.
     """

@@ -13,7 +13,7 @@ What ends up in the file (``radar-odom export model.pt``):
   ``state``; **pair form**: inputs ``prev_cart``, ``cart`` (``prev_polar``, ``polar``),
   outputs ``pose``, ``covariance``; **sequence form** (fast search only): input ``carts``
   [T, W, W] with T left free in the file, outputs ``pose`` [T − 1, 3] and ``covariance``
-  [T − 1, 3, 3], one per consecutive pair (offline batches, ``radar_odom.batch``);
+  [T − 1, 3, 3], one per consecutive pair (offline batches, ``radar_odom.odometry.batch``);
 * ``metadata_props``, written by `radar_odom.model_file.build_metadata` (the schema the runtime
   reads with): profile, form, sweep geometry, names and shapes, masking, training data, versions.
 

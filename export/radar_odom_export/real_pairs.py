@@ -3,7 +3,7 @@ the mix with simulated pairs in every batch.
 
 * `real_drive` reads a recording with any supported ground truth (Oxford
   ``gt/radar_odometry.csv``, Boreas / MulRan poses, a RADIATE GNSS/INS track aligned in clock and
-  heading as ``radar-odom run`` aligns it: `radar_odom.run.gnss_reference`, the clock from the
+  heading as ``radar-odom run`` aligns it: `radar_odom.evaluation.reference.gnss_reference`, the clock from the
   shipped default model's odometry of the same sweeps) onto a profile's grid, and cuts its last
   ``holdout`` sweeps off: that stretch is never a training pair, so it stays an honest test.
 * `SkipPairs` indexes every pair (k, k + s), s = 1 … ``max_skip``, of real drives, its pose the
@@ -66,8 +66,8 @@ def reference_relative(seq) -> tuple[np.ndarray, dict]:
             "GPS_IMU_Twist/ folder); a real recording for training needs one"
         )
     from radar_odom import RadarOdometer, pretrained
+    from radar_odom.evaluation.reference import gnss_reference
     from radar_odom.model_zoo import default_model_name
-    from radar_odom.run import gnss_reference
 
     odo = RadarOdometer(pretrained(default_model_name()))
     for frame in progress(seq, desc=f"aligning the reference of {seq.root.name}", unit="sweep"):
@@ -86,7 +86,7 @@ def real_drive(path, profile: GridProfile, holdout: int = DEFAULT_HOLDOUT, use_c
     """The recording at ``path`` on ``profile``'s grid with its reference poses, its last
     ``holdout`` sweeps cut off (`reference_relative`; pairs without a reference are NaN rows,
     which `SkipPairs` leaves out). Cached per (recording, grid) under the cache folder."""
-    from radar_odom.formats import read_sequence
+    from radar_odom.io import read_sequence
 
     seq = read_sequence(path)
     if len(seq) - int(holdout) < 2:

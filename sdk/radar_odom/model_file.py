@@ -13,7 +13,7 @@ The keys (`SCHEMA`; required: always, or for stream-form / polar models only):
   outputs: pose, covariance, state), ``"pair"`` (inputs: previous and current sweep; outputs:
   pose, covariance) or ``"sequence"`` (input: T consecutive sweeps, T free in the file, at least
   2; outputs: pose [T − 1, 3] and covariance [T − 1, 3, 3], one per consecutive pair: the
-  offline batch form, ``radar_odom.batch``).
+  offline batch form, ``radar_odom.odometry.batch``).
 - ``radar_odom.sweep_geometry`` (JSON object, required): ``{num_azimuths, num_bins,
   range_resolution_m, range_offset_m}`` of the sweeps the model was trained on.
 - ``radar_odom.inputs`` / ``radar_odom.outputs`` (JSON arrays, required): tensor names, in

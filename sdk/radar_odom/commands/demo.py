@@ -5,7 +5,7 @@ HELP = "simulate a short drive (held-out seed) and run a shipped model on it end
 
 
 def register(subparsers) -> None:
-    from ..demo import DEFAULT_FRAMES, DEFAULT_SEED
+    from .run_demo import DEFAULT_FRAMES, DEFAULT_SEED
 
     p = subparsers.add_parser("demo", help=HELP, description=HELP + "; prints metrics and saves a plot.")
     p.add_argument(
@@ -40,9 +40,9 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from ..demo import run_demo
     from ..errors import OutputError
-    from ..run import prepare_output_dir
+    from .run_demo import run_demo
+    from .run_sequence import prepare_output_dir
 
     out = prepare_output_dir(args.output)  # OutputError (one line) when -o names a file
     try:

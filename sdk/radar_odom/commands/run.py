@@ -14,7 +14,7 @@ EPILOG = (
 def register(subparsers) -> None:
     import argparse
 
-    from ..odometer import DESKEW_DEFAULT
+    from ..odometry.odometer import DESKEW_DEFAULT
 
     p = subparsers.add_parser(
         "run", help=HELP,
@@ -60,13 +60,13 @@ def register(subparsers) -> None:
     p.add_argument("--no-plot", action="store_true", help="do not draw trajectory.png (no matplotlib needed)")
     p.add_argument("--no-motion-prior", action="store_true",
                    help="report the raw matches: no fusion with the constant-velocity motion prior "
-                        "(on by default; see radar_odom.motion_prior)")
+                        "(on by default; see radar_odom.odometry.motion_prior)")
     _register_bag_options(p)
     p.set_defaults(func=run)
 
 
 def _register_bag_options(p) -> None:
-    from ..ros_msgs import NAVTECH_SWEEP_PERIOD_S, STAMP_POSITIONS
+    from ..ros.msgs import NAVTECH_SWEEP_PERIOD_S, STAMP_POSITIONS
     from ..scan import OXFORD_ENCODER_SIZE, OXFORD_RANGE_RESOLUTION_M
 
     g = p.add_argument_group(
@@ -106,10 +106,11 @@ def run(args) -> int:
     import numpy as np
 
     from ..errors import GroundTruthWarning, OutputError, RadarOdomError
-    from ..gaps import GAP, NEW_SEGMENT, NEW_SEGMENT_GAP_S
+    from ..evaluation.report import format_metrics
     from ..model_zoo import default_model_name, resolve_model
-    from ..pipeline import DEFAULT_PREFETCH
-    from ..run import format_metrics, run_sequence
+    from ..odometry.gaps import GAP, NEW_SEGMENT, NEW_SEGMENT_GAP_S
+    from ..odometry.pipeline import DEFAULT_PREFETCH
+    from .run_sequence import run_sequence
 
     model_spec = args.model or default_model_name()
     model = resolve_model(model_spec)

@@ -15,7 +15,7 @@ def write_recording(pngs: list[bytes], folder, count: int) -> list[Path]:
     continuous (re-encoding costs nothing at run time: only the files are read back)."""
     import cv2
 
-    from ..formats.oxford import scan_to_image
+    from ..io.oxford import scan_to_image
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -33,10 +33,10 @@ def write_recording(pngs: list[bytes], folder, count: int) -> list[Path]:
 
 def file_throughput(model_path, pngs: list[bytes], *, sweeps: int = 100, threads: int = 2,
                     prefetch: int = 2, warmup: int = 5) -> dict:
-    """`radar_odom.pipeline.throughput` of ``sweeps`` files through a fresh `RadarOdometer`,
+    """`radar_odom.odometry.pipeline.throughput` of ``sweeps`` files through a fresh `RadarOdometer`,
     pipelined (``prefetch``) and serial (prefetch 0), as dicts keyed "pipelined" / "serial"."""
-    from ..odometer import RadarOdometer
-    from ..pipeline import iter_estimates
+    from ..odometry.odometer import RadarOdometer
+    from ..odometry.pipeline import iter_estimates
 
     out = {}
     with tempfile.TemporaryDirectory() as tmp:

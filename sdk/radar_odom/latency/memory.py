@@ -33,7 +33,7 @@ def rss_stream_here(model_path, steps: int, threads: int = 2, every: int = 50, d
     Returns ``{"steps", "samples": [[step, MiB], ...], "peak_mb", "growth_mb"}`` where
     ``growth_mb`` is the RSS change from the first sample after 10 % of the stream to the end.
     """
-    from ..odometer import RadarOdometer
+    from ..odometry.odometer import RadarOdometer
 
     pngs = simulated_pngs(distinct, seed=PROFILE_SEED + 1)
     odo = RadarOdometer(model_path, threads=threads, max_gap_s=10.0)

@@ -12,7 +12,7 @@ def simulated_pngs(count: int, seed: int = PROFILE_SEED, scenario: str = "urban"
     """``count`` simulated sweeps encoded as Oxford-layout PNG bytes (what a recording holds)."""
     import cv2
 
-    from ..formats.oxford import scan_to_image
+    from ..io.oxford import scan_to_image
     from ..sim import simulate_drive
 
     out = []
@@ -35,7 +35,7 @@ def decode_png(data: bytes) -> np.ndarray:
 
 def parse_sweep(img: np.ndarray, source: str = "profile"):
     """Oxford-layout pixels → `RadarScan` (the reader's own parsing)."""
-    from ..formats._layout import scan_from_header_image
+    from ..io._layout import scan_from_header_image
     from ..scan import OXFORD_RANGE_RESOLUTION_M
 
     return scan_from_header_image(img, source, use_valid_column=True,

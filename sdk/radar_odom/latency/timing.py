@@ -43,7 +43,7 @@ def profile_model(model_path, pngs: list[bytes], *, steps: int = 200, warmup: in
     (e.g. print) says when each later phase starts (they run for a minute or more without a bar)."""
     say = echo or (lambda text: None)
     from .._progress import progress
-    from ..odometer import RadarOdometer
+    from ..odometry.odometer import RadarOdometer
     from ..onnx_model import OnnxModel
 
     model = OnnxModel(model_path, threads=threads)

@@ -1,7 +1,7 @@
 """Write a simulated drive in the Oxford Radar RobotCar layout, through the same writers the
 readers are tested against:
 
-    OUT/radar/<first-azimuth µs>.png        Oxford sweep PNGs (`radar_odom.formats.write_scan`)
+    OUT/radar/<first-azimuth µs>.png        Oxford sweep PNGs (`radar_odom.io.write_scan`)
     OUT/radar.timestamps                    "<µs> <valid>" per sweep
     OUT/gt/radar_odometry.csv               Oxford relative poses (source = later sweep)
     OUT/labels/<first-azimuth µs>.png       uint8 [A, B] static-world label (255 = static)
@@ -30,7 +30,7 @@ def write_drive(out_dir, seed: int, frames: int, scenario: str | Scenario = "urb
     (mixed sweeps would read back as one broken recording).
     """
     from .._progress import progress as bar
-    from ..formats import oxford_gt_rows, write_oxford_ground_truth, write_radar_timestamps, write_scan
+    from ..io import oxford_gt_rows, write_oxford_ground_truth, write_radar_timestamps, write_scan
 
     sim = Simulator(seed, frames, scenario, config)
     seq = Path(out_dir)

@@ -85,7 +85,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .se2 import wrap_angle as _wrap_any
+from ..se2 import wrap_angle as _wrap_any
 
 PRIOR_DOMINATED = "prior_dominated"
 GATED = "gated"

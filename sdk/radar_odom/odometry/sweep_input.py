@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .polar import polar_to_cartesian
-from .scan import RadarScan
+from ..polar import polar_to_cartesian
+from ..scan import RadarScan
 
 # Below this displacement over one sweep (m, and the yaw's arc at the grid's edge) de-skew moves no
 # pixel by a measurable amount: the cached static maps are used instead (same image within 5 % of

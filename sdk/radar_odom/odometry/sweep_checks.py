@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import ModelMismatchError
-from .onnx_model import GEOMETRY_KEYS
-from .scan import RadarScan
+from ..errors import ModelMismatchError
+from ..onnx_model import GEOMETRY_KEYS
+from ..scan import RadarScan
 
 MIN_COVERAGE = 0.75
 NOISE_STRUCTURE = 0.2

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .se2 import se2_batch
+from ..se2 import se2_batch
 
 
 def _check_poses(poses_abs, what: str) -> np.ndarray:

@@ -1,10 +1,10 @@
 """Radar sweeps from ROS bags: ROS 1 ``.bag``, ROS 2 bag folders (sqlite3 or MCAP) and ``.mcap`` files.
 
 Read with the pure-Python ``rosbags`` library (the ``ros`` extra: ``pip install "radar-odom[ros]"``;
-no ROS installation needed). One topic of one of the message types `radar_odom.ros_msgs` converts
+no ROS installation needed). One topic of one of the message types `radar_odom.ros.msgs` converts
 (``sensor_msgs/Image`` polar sweeps, PNG ``sensor_msgs/CompressedImage``, the Navtech driver's
 ``navtech_msgs/msg/RadarBScanMsg``, registered here as a custom type for bags that do not carry
-its definition) becomes a `BagSequence`: a `radar_odom.formats.Sequence` whose sweeps are decoded
+its definition) becomes a `BagSequence`: a `radar_odom.io.Sequence` whose sweeps are decoded
 when asked for, in the bag's order, so ``radar-odom run BAG --topic T`` and
 `radar_odom.iter_estimates` treat it like a recording folder.
 
@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import MissingExtraError, ScanFormatError, SequenceError
-from ..ros_msgs import (
+from ..ros.msgs import (
     NAVTECH_BSCAN_MSGDEF,
     NAVTECH_BSCAN_MSGTYPE,
     RADAR_MSGTYPES,
@@ -98,7 +98,7 @@ class BagSequence(Sequence):
     """One radar topic of a bag as a `Sequence` (format ``"bag"``; no ground truth).
 
     ``timestamps_us`` int64[N]: each sweep's first-azimuth time (µs); ``stamps_ns`` int64[N]: the
-    messages' header stamps (ns), which `radar_odom.bag_out` stamps the odometry with; ``topic``,
+    messages' header stamps (ns), which `radar_odom.io.bag_out` stamps the odometry with; ``topic``,
     ``msgtype``, ``geometry`` (`PolarImageGeometry`). ``paths[i]`` names the message
     (``BAG[TOPIC #i]``) in errors. `scan` decodes message ``i``, reading the bag forward from the
     last one asked for (in order, as `iter_estimates` asks, each message is read once).

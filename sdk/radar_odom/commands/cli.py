@@ -5,9 +5,9 @@ import argparse
 import importlib
 import sys
 
-from . import __version__
-from .commands import COMMANDS
-from .errors import RadarOdomError
+from .. import __version__
+from ..errors import RadarOdomError
+from . import COMMANDS
 
 
 def build_parser() -> argparse.ArgumentParser:

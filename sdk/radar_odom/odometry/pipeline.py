@@ -9,7 +9,7 @@ a queue of that many sweeps, while the calling thread runs the graph (`RadarOdom
 those of the unpipelined loop (``prefetch=0``: everything on the calling thread).
 
     from radar_odom import RadarOdometer, pretrained
-    from radar_odom.pipeline import iter_estimates
+    from radar_odom.odometry.pipeline import iter_estimates
 
     odo = RadarOdometer(pretrained("cart-0.4"))
     with iter_estimates("seq", odo, prefetch=2) as sweeps:
@@ -31,7 +31,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from .errors import ConfigError, ScanFormatError, StreamError
+from ..errors import ConfigError, ScanFormatError, StreamError
 
 ON_ERROR = ("skip", "stop", "raise")
 DEFAULT_PREFETCH = 2
@@ -181,9 +181,9 @@ def _sources(source, load_kwargs: dict):
     """(items, load, describe): ``describe(item) -> (path or None, file-name time µs or None)``."""
     import numpy as np
 
-    from .formats import Sequence, load_scan, read_sequence
-    from .formats._layout import name_timestamp, to_microseconds
-    from .scan import RadarScan
+    from ..io import Sequence, load_scan, read_sequence
+    from ..io._layout import name_timestamp, to_microseconds
+    from ..scan import RadarScan
 
     if isinstance(source, (str, Path)) and not Path(source).is_file():
         source = read_sequence(source, **load_kwargs)  # a folder (SequenceError when there is none)

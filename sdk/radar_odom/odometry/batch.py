@@ -12,7 +12,7 @@ the stream form, step by step (tests/test_batch.py), and how much faster that is
 the grid (README, "Batched pairs").
 
 This is the graph's own measurement, pair by pair: no motion prior, no bridging of degenerate
-sweeps. A degenerate sweep (`radar_odom.odometer.sweep_problem`), a sweep the model cannot take,
+sweeps. A degenerate sweep (`radar_odom.odometry.odometer.sweep_problem`), a sweep the model cannot take,
 or timestamps that do not increase raise an error naming the sweep; for recordings with faults,
 and for the prior, use `RadarOdometer`, which handles them (``radar-odom run``).
 """
@@ -23,12 +23,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._progress import progress as progress_bar
-from .errors import ConfigError, ModelMismatchError, StreamError
+from .._progress import progress as progress_bar
+from ..errors import ConfigError, ModelMismatchError, StreamError
+from ..onnx_model import OnnxModel
+from ..scan import RadarScan
+from ..se2 import turn_frame
 from .odometer import MIN_COVERAGE, check_sweep_geometry, graph_input, model_region_m, sweep_problem
-from .onnx_model import OnnxModel
-from .scan import RadarScan
-from .se2 import turn_frame
 
 DEFAULT_BATCH = 16  # pairs per graph call; from 4 on the time per pair stopped falling (README)
 

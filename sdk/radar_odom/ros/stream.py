@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import RadarOdomError
-from .ros_msgs import OdometryFields, PolarImageGeometry, odometry_fields, scan_from_msg
+from ..errors import RadarOdomError
+from .msgs import OdometryFields, PolarImageGeometry, odometry_fields, scan_from_msg
 
 
 class RosOdometryStream:
@@ -32,7 +32,7 @@ class RosOdometryStream:
         Raises the SDK's typed errors (`ScanFormatError`, `StreamError`, ...); a caller that keeps
         running counts them in ``errors`` and goes on.
         """
-        from .ros_msgs import stamp_ns as header_ns
+        from .msgs import stamp_ns as header_ns
 
         scan = scan_from_msg(msg, msgtype, self.geometry, source=f"{msgtype} message")
         traj_before = self.odometer.trajectory

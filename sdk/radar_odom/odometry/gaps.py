@@ -3,7 +3,7 @@
 Over a gap the car moves further than the graph's search window reaches (RADIATE drives hold
 holes of 1.3–1.5 s, 10–16 m at city speed, against a ±8 m window), so a plain match clips
 to the window's edge or locks onto a wrong peak. The odometer instead draws the new sweep in the
-frame the motion prior predicts for it (`radar_odom.sweep_input.SweepMotion.frame_pose` =
+frame the motion prior predicts for it (`radar_odom.odometry.sweep_input.SweepMotion.frame_pose` =
 P⁻¹), so the graph measures only the residual M of the prediction P, and composes the two:
 the new sweep's pose in the reference frame is ``M ∘ P``, whose covariance is the residual's
 carried through that composition (P is not uncertain there: it only placed the window).

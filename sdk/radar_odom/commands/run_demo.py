@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .model_zoo import default_model_name
+from ..model_zoo import default_model_name
 
 DEFAULT_FRAMES = 120  # 30 s at 4 Hz: long enough for 100 m KITTI segments at urban speeds
 DEFAULT_SEED = 9005  # held out (training 1000-2999); a drive with a 84° turn and a stop
@@ -22,9 +22,10 @@ def run_demo(frames: int = DEFAULT_FRAMES, model: str | None = None, seed: int =
     """
     import time
 
-    from .model_zoo import resolve_model
-    from .run import format_metrics, run_sequence
-    from .sim import write_drive
+    from ..evaluation.report import format_metrics
+    from ..model_zoo import resolve_model
+    from ..sim import write_drive
+    from .run_sequence import run_sequence
 
     model_path = resolve_model(model or default_model_name())
     out_dir = Path(out_dir)

@@ -4,7 +4,7 @@
 ROS 2 bag folder (``PATH/metadata.yaml`` and ``PATH/<name>.mcap``), which ``ros2 bag play``,
 ``evo_traj bag2`` and rosbags read. Needs the ``ros`` extra (rosbags).
 
-Messages (frames REP-103/105, `radar_odom.ros_msgs`): ``header.frame_id`` = ``odom_frame`` (the
+Messages (frames REP-103/105, `radar_odom.ros.msgs`): ``header.frame_id`` = ``odom_frame`` (the
 first sweep's base frame), ``child_frame_id`` = ``base_frame``; pose = the sweep's absolute pose;
 ``pose.covariance`` = the step's 3×3 covariance in the (x, y, yaw) cells of the row-major 6×6
 (indices 0, 1, 5, 6, 7, 11, 30, 31, 35), turned into the odom frame's axes, `UNOBSERVED_VARIANCE`
@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import MissingExtraError, OutputError
-from .ros_msgs import odometry_fields, split_ns, yaw_quaternion_xyzw
+from ..errors import MissingExtraError, OutputError
+from ..ros.msgs import odometry_fields, split_ns, yaw_quaternion_xyzw
 
 ODOM_TOPIC = "/radar_odom/odometry"
 TF_TOPIC = "/tf"
@@ -52,7 +52,7 @@ def write_odometry_bag(path, timestamps_us, poses, estimates, stamps_ns=None, *,
             for ``timestamps_us`` · 1000.
     Raises `OutputError` when ``path`` exists, `MissingExtraError` without rosbags.
     """
-    from .se2 import to_xyyaw
+    from ..se2 import to_xyyaw
 
     Writer, StoragePlugin, store = _rosbags_writer()
     path = Path(path)

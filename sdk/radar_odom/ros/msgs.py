@@ -2,7 +2,7 @@
 
 Everything here works on any object with the ROS field names (a rosbags message, an rclpy
 message, a `types.SimpleNamespace`), so it is tested without ROS and shared by the bag reader
-(`radar_odom.formats.bag`), the bag writer (`radar_odom.bag_out`) and the ROS 2 node example
+(`radar_odom.io.bag`), the bag writer (`radar_odom.io.bag_out`) and the ROS 2 node example
 (``examples/ros2_node.py``). Nothing here imports rosbags or rclpy.
 
 Radar messages (rows are azimuths, columns range bins, as the Navtech drivers and CFEAR's
@@ -36,9 +36,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import ConfigError, ScanFormatError
-from .formats._layout import IHDR_BYTES, PNG_SIGNATURE, read_png_header
-from .scan import OXFORD_ENCODER_SIZE, OXFORD_RANGE_RESOLUTION_M, RadarScan
+from ..errors import ConfigError, ScanFormatError
+from ..io._layout import IHDR_BYTES, PNG_SIGNATURE, read_png_header
+from ..scan import OXFORD_ENCODER_SIZE, OXFORD_RANGE_RESOLUTION_M, RadarScan
 
 IMAGE_MSGTYPE = "sensor_msgs/msg/Image"
 COMPRESSED_IMAGE_MSGTYPE = "sensor_msgs/msg/CompressedImage"
@@ -349,7 +349,7 @@ def odometry_fields(stamp_ns_: int, pose_abs_oxford, step_pose_oxford, step_cov_
         prev_yaw_oxford_rad: the previous sweep's absolute yaw (Oxford), to turn the step
             covariance into the odom frame.
     """
-    from .se2 import to_xyyaw
+    from ..se2 import to_xyyaw
 
     x, y, yaw = rep103_from_oxford(*to_xyyaw(np.asarray(pose_abs_oxford)[None])[0])
     cov = covariance_rep103(step_cov_oxford)

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from .se2 import invert, relative_from_absolute, wrap_angle
+from ..se2 import invert, relative_from_absolute, wrap_angle
 
 KITTI_LENGTHS_M = (100, 200, 300, 400, 500, 600, 700, 800)
 POOLINGS = ("segments", "sequences")

@@ -21,8 +21,8 @@ drive. Outputs in ``out_dir``:
 Pace: the next sweeps are decoded, parsed and prepared (`RadarOdometer.prepare`) on a worker
 thread while the graph runs on the calling one (``prefetch`` sweeps ahead; 0: one after the
 other); the outputs are the same either way. ``RunResult.throughput`` holds the sweeps/s and
-the two stages' medians (`radar_odom.pipeline.throughput`); the loop itself is
-`radar_odom.pipeline.iter_estimates`, the iterator API for library users.
+the two stages' medians (`radar_odom.odometry.pipeline.throughput`); the loop itself is
+`radar_odom.odometry.pipeline.iter_estimates`, the iterator API for library users.
 
 Bad sweeps (``on_error``): a sweep that cannot be read (`ScanFormatError`), or whose own
 timestamp is garbage (its first azimuth's time disagrees with its file name by more than
@@ -42,18 +42,19 @@ from pathlib import Path
 
 import numpy as np
 
-from ._progress import progress
-from .errors import ConfigError, OutputError, RadarOdomError, RunAborted, ScanFormatError, SequenceError, StreamError
-from .odometer import Estimate, RadarOdometer
-from .pipeline import DEFAULT_PREFETCH, NAME_TIME_TOLERANCE_S, Throughput, iter_estimates, throughput  # noqa: F401
+from .._progress import progress
+from ..errors import ConfigError, OutputError, RadarOdomError, RunAborted, ScanFormatError, SequenceError, StreamError
+from ..evaluation.plot import plot_trajectory
+from ..evaluation.reference import gnss_reference
+from ..evaluation.report import evaluate
+from ..odometry.odometer import Estimate, RadarOdometer
+from ..odometry.pipeline import DEFAULT_PREFETCH, NAME_TIME_TOLERANCE_S, Throughput, iter_estimates, throughput  # noqa: F401
 
 ESTIMATE_COLUMNS = (
     "timestamp_us", "prev_timestamp_us", "x_m", "y_m", "yaw_rad",
     "cov_xx", "cov_xy", "cov_xyaw", "cov_yy", "cov_yyaw", "cov_yawyaw", "flags",
     "meas_x_m", "meas_y_m", "meas_yaw_rad",
 )
-KITTI_STEP = 4  # frames between segment starts at 4 Hz (radar convention; devkit uses 10)
-KITTI_POOLING = "segments"
 ON_ERROR = ("skip", "stop")
 
 
@@ -115,115 +116,6 @@ def read_estimates_csv(path) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[f
     return ts, poses, covs, flags
 
 
-def plot_trajectory(path, est_poses: np.ndarray, gt_poses: np.ndarray | None, timestamps_us, title: str) -> Path:
-    """PNG of the path seen from above (x, −y) and heading (−yaw) over time, estimate vs truth."""
-    try:
-        import matplotlib
-    except ImportError:
-        from .errors import MissingExtraError
-
-        raise MissingExtraError("matplotlib", "cli") from None
-    matplotlib.use("Agg")  # files only: never needs a display
-    import matplotlib.pyplot as plt
-
-    from .se2 import to_xyyaw
-
-    t_s = (np.asarray(timestamps_us) - timestamps_us[0]) * 1e-6
-    fig, (ax_map, ax_yaw) = plt.subplots(1, 2, figsize=(12, 5.5), gridspec_kw={"width_ratios": [3, 2]})
-    curves = [("estimate", est_poses, "tab:blue")]
-    if gt_poses is not None:
-        curves.insert(0, ("ground truth", gt_poses, "k"))
-    for label, poses, colour in curves:
-        xyyaw = to_xyyaw(poses)
-        ax_map.plot(xyyaw[:, 0], -xyyaw[:, 1], color=colour, label=label, lw=1.5)
-        ax_yaw.plot(t_s, np.degrees(-np.unwrap(xyyaw[:, 2])), color=colour, label=label, lw=1.5)
-    ax_map.plot([0], [0], "o", color="tab:green", label="start")
-    ax_map.set_aspect("equal", adjustable="datalim")
-    ax_map.set_xlabel("x (m, forward at start)")
-    ax_map.set_ylabel("−y (m, left at start)")
-    ax_map.legend(loc="best")
-    ax_map.grid(alpha=0.3)
-    ax_yaw.set_xlabel("time (s)")
-    ax_yaw.set_ylabel("heading −yaw (deg)")
-    ax_yaw.grid(alpha=0.3)
-    fig.suptitle(f"{title}\nmap view from above (z up): y and yaw negated from the x-fwd/y-right/z-down frame")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return Path(path)
-
-
-def evaluate(gt_poses: np.ndarray, est_poses: np.ndarray, estimates=None,
-             jitter_diag=None, gt_relative=None) -> tuple[dict | None, dict]:
-    """(KITTI metrics, or None when no segment fits; per-step relative errors).
-
-    The per-step summary also holds the mean Mahalanobis d² of the non-degenerate estimates
-    (≈ 3 when the covariance is calibrated) when ``estimates`` are given, computed with
-    ``jitter_diag`` added to each covariance as in calibration (`metrics.covariance_jitter`). Steps without
-    ground truth (NaN) are left out of the per-step errors (``steps_without_gt`` counts them);
-    any of them voids the KITTI metric. ``gt_relative`` (float[N−1, 3], the sequence's own
-    relative ground truth) is used for the per-step errors when given, so one missing pair costs
-    one step, not every step after it (chained absolute poses are unknown past a gap).
-    """
-    from .metrics import kitti_lengths_for, kitti_metrics, mahalanobis_sq, path_lengths_m, relative_pose_errors
-    from .se2 import relative_from_absolute
-
-    gt_rel = relative_from_absolute(gt_poses) if gt_relative is None else np.asarray(gt_relative, dtype=np.float64)
-    est_rel = relative_from_absolute(est_poses)
-    ok = np.all(np.isfinite(gt_rel), axis=1)
-    step_errors = {"steps": int(ok.sum())}
-    if not ok.all():
-        step_errors["steps_without_gt"] = int((~ok).sum())
-    if ok.any():
-        errors = relative_pose_errors(gt_rel[ok], est_rel[ok])
-        # "steps" already counts them (relative_pose_errors' "num_steps" would say it twice)
-        step_errors.update({k: v for k, v in errors.items() if not isinstance(v, np.ndarray) and k != "num_steps"})
-    if estimates is not None and len(estimates) == len(gt_rel):
-        good = ok & np.array([not e.degenerate for e in estimates], dtype=bool)
-        if good.any():
-            covs = np.stack([e.covariance for e in estimates])[good]
-            try:
-                d2 = mahalanobis_sq(est_rel[good] - gt_rel[good], covs, jitter_diag)
-                step_errors["mean_mahalanobis_d2"] = float(np.mean(d2))
-            except ValueError:  # a singular covariance (a hard-argmax-like β): no d²
-                pass
-    metrics = None
-    if ok.all() and np.all(np.isfinite(gt_poses)):
-        lengths = kitti_lengths_for(path_lengths_m(gt_poses)[-1])
-        try:
-            if lengths is not None:
-                metrics = kitti_metrics(gt_poses, est_poses, step=KITTI_STEP, pooling=KITTI_POOLING, lengths=lengths)
-                metrics["lengths_m"] = list(lengths)
-        except ValueError:  # too short for even the shortest segment
-            metrics = None
-    return metrics, step_errors
-
-
-def format_metrics(metrics: dict | None, step_errors: dict | None) -> str:
-    """Human-readable lines for the metrics (always naming step and pooling)."""
-    lines = []
-    if metrics is not None:
-        lengths = metrics.get("lengths_m")
-        seg = f"segments of {lengths[0]:g}–{lengths[-1]:g} m, " if lengths else ""
-        lines.append(
-            f"KITTI odometry ({seg}step {metrics.get('step', KITTI_STEP)}, pooling "
-            f"{metrics.get('pooling', KITTI_POOLING)}, {metrics.get('num_segments', '?')} segments): "
-            f"translation {metrics['translation_percent']:.3f} %, rotation {metrics['rotation_deg_per_m']:.5f} deg/m"
-        )
-    elif step_errors is not None and step_errors.get("steps_without_gt"):
-        missing, used = step_errors["steps_without_gt"], step_errors.get("steps", 0)
-        lines.append(
-            f"KITTI odometry: not computed, {missing} of {missing + used} steps lack ground truth "
-            f"(see the warnings); per-step relative errors over the other {used} instead"
-        )
-    elif step_errors is not None:
-        lines.append("KITTI odometry: drive too short for an 80 m segment; per-step relative errors instead")
-    if step_errors is not None:
-        lines.append("per step: " + ", ".join(f"{k} {v:.4g}" for k, v in step_errors.items()
-                                              if isinstance(v, (int, float))))
-    return "\n".join(lines)
-
-
 def prepare_output_dir(out_dir) -> Path:
     """Create ``out_dir`` (and parents); `OutputError` if it is a file or cannot be created."""
     out_dir = Path(out_dir)
@@ -258,19 +150,19 @@ def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float | No
     built from a path; an odometer given as ``model`` keeps its own setting. ``on_error``:
     ``"skip"`` (default) or ``"stop"`` for a sweep that cannot be used (module docstring).
     ``prefetch``: sweeps decoded ahead on a worker thread while the graph runs
-    (`radar_odom.pipeline.iter_estimates`; 0: no worker). The outputs do not depend on it;
-    ``RunResult.throughput`` reports the pace (`radar_odom.pipeline.throughput`). ``max_gap_s``:
+    (`radar_odom.odometry.pipeline.iter_estimates`; 0: no worker). The outputs do not depend on it;
+    ``RunResult.throughput`` reports the pace (`radar_odom.odometry.pipeline.throughput`). ``max_gap_s``:
     None crosses every gap (`RadarOdometer`); ``deskew``: None takes the odometer's default.
     A GNSS/INS reference (RADIATE ``GPS_IMU_Twist/``) is aligned to the radar first:
     ``gt_time_offset`` (s; the reference for radar time t is the sample at t + offset) and
     ``gt_heading_offset_deg`` (the INS heading minus the direction of travel, counter-clockwise)
-    are estimated from the data when None (`radar_odom.formats.gnss_ins`) and reported in
+    are estimated from the data when None (`radar_odom.io.gnss_ins`) and reported in
     ``RunResult.reference``.
 
     ROS bags (``seq_dir`` a ``.bag`` / ``.mcap`` / ROS 2 bag folder, the ``ros`` extra): the radar
-    ``topic`` (None: the bag's only radar topic) is read as `radar_odom.formats.bag.BagSequence`
-    with ``bag_geometry`` (`radar_odom.ros_msgs.PolarImageGeometry` fields). ``bag_out``: a path
-    for a ROS 2 MCAP bag of ``nav_msgs/Odometry`` and TF (`radar_odom.bag_out`), written with the
+    ``topic`` (None: the bag's only radar topic) is read as `radar_odom.io.bag.BagSequence`
+    with ``bag_geometry`` (`radar_odom.ros.msgs.PolarImageGeometry` fields). ``bag_out``: a path
+    for a ROS 2 MCAP bag of ``nav_msgs/Odometry`` and TF (`radar_odom.io.bag_out`), written with the
     other outputs (``RunResult.files["bag"]``).
 
     Raises `OutputError` when ``out_dir`` cannot be a folder, `RunAborted` (``on_error="stop"``,
@@ -339,9 +231,9 @@ def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float | No
 
 
 def open_recording(source, topic: str | None = None, bag_geometry: dict | None = None):
-    """A recording folder (`read_sequence`) or a ROS bag (`radar_odom.formats.bag.open_bag`)."""
-    from .formats import read_sequence
-    from .formats.bag import is_bag, open_bag
+    """A recording folder (`read_sequence`) or a ROS bag (`radar_odom.io.bag.open_bag`)."""
+    from ..io import read_sequence
+    from ..io.bag import is_bag, open_bag
 
     if is_bag(source):
         return open_bag(source, topic, **(bag_geometry or {}))
@@ -359,7 +251,7 @@ def check_bag_out(path) -> None:
     after the odometry: one that exists, a folder that is missing or read-only, no rosbags."""
     import os
 
-    from .bag_out import _rosbags_writer
+    from ..io.bag_out import _rosbags_writer
 
     path = Path(path)
     if path.exists():
@@ -374,90 +266,17 @@ def check_bag_out(path) -> None:
 
 def _write_bag(path, seq, result: RunResult) -> Path:
     """The run's odometry as a ROS 2 bag, stamped with the input messages' stamps where known."""
-    from .bag_out import write_odometry_bag
+    from ..io.bag_out import write_odometry_bag
 
     by_first_us = dict(zip(getattr(seq, "timestamps_us", ()).tolist(), getattr(seq, "stamps_ns", ())))
     stamps = [int(by_first_us.get(int(t), int(t) * 1000)) for t in result.timestamps_us]
     return write_odometry_bag(path, result.timestamps_us, result.poses, result.estimates, stamps)
 
 
-# the automatic clock alignment is refused below these: a next-best minimum this close in cost
-# (1.17–1.42 on short, straight or non-overlapping windows that aligned 4–15 s wrong; 1.92 on the
-# shared drive, right), or this few radar pairs compared inside the track
-MIN_CLOCK_SECOND_BEST_RATIO = 1.5
-MIN_CLOCK_PAIRS = 40
-
-
-def gnss_reference(track, timestamps_us, est_poses, time_offset_s=None, heading_offset_deg=None):
-    """(reference poses float64[N, 3, 3] at ``timestamps_us``, info dict, one-line note) from a
-    GNSS/INS track, its clock and heading offsets given or found from the data.
-
-    The clock (None): by aligning ``est_poses``' yaw increments and step lengths with the track's
-    (`gnss_ins.estimate_clock_offset_s`); refused with a `SequenceError` (the reference is then not
-    used) where the alignment is ambiguous (next-best minimum under `MIN_CLOCK_SECOND_BEST_RATIO`
-    × the best's cost) or compares under `MIN_CLOCK_PAIRS` pairs: a wrong clock is worse than none.
-    The heading (None): the INS heading turned onto the GNSS track direction, the offset followed
-    in time (`gnss_ins.heading_offset_track_rad`: the INS re-aligns while driving); a number (°):
-    that one offset for the whole drive.
-    """
-    import math
-
-    from .formats import gnss_ins
-    from .se2 import relative_from_absolute
-
-    info = {}
-    if heading_offset_deg is None:
-        offsets = gnss_ins.heading_offset_track_rad(track)
-        deg = np.degrees(offsets)
-        t = track.seconds_since_start()
-        # where it steps: the largest change of the followed offset over 10 s
-        later = np.interp(t + 10.0, t, deg)
-        k = int(np.argmax(np.abs(later - deg)))
-        info.update(heading_offset_deg=float(np.median(deg)), heading_offset_found="followed",
-                    heading_offset_range_deg=(float(deg.min()), float(deg.max())),
-                    heading_offset_step_deg=float(later[k] - deg[k]), heading_offset_step_at_s=float(t[k]))
-        heading = offsets
-    else:
-        info.update(heading_offset_deg=float(heading_offset_deg), heading_offset_found="given")
-        heading = math.radians(float(heading_offset_deg))
-    if time_offset_s is None:
-        clock = gnss_ins.estimate_clock_offset_s(track, timestamps_us, relative_from_absolute(est_poses))
-        info.update(clock_offset_s=float(clock.offset_s), clock_offset_found="estimated", clock_cost=float(clock.cost),
-                    clock_pairs=int(clock.num_pairs), clock_second_best_ratio=float(clock.second_best_ratio))
-        if clock.num_pairs < MIN_CLOCK_PAIRS or clock.second_best_ratio < MIN_CLOCK_SECOND_BEST_RATIO:
-            raise SequenceError(
-                f"the radar and GNSS/INS clocks cannot be aligned with confidence: best offset {clock.offset_s:+.3f} s "
-                f"over {clock.num_pairs} pairs (need {MIN_CLOCK_PAIRS}), the next-best minimum costs only "
-                f"{clock.second_best_ratio:.2f}× as much (need {MIN_CLOCK_SECOND_BEST_RATIO}); the radar and the "
-                "track overlap too little or drive too straight — give the offset with --gt-time-offset S"
-            )
-    else:
-        info.update(clock_offset_s=float(time_offset_s), clock_offset_found="given")
-    # the track has holes of up to 0.8 s (shared drive): interpolating a car across them errs by centimetres
-    poses = gnss_ins.poses_at(track, timestamps_us, info["clock_offset_s"], heading, max_sample_gap_s=1.0)
-    if info["clock_offset_found"] == "estimated":
-        clock_how = (f"estimated from the odometry's yaw rate and speed over {info['clock_pairs']} pairs, cost "
-                     f"{info['clock_cost']:.3g}, next-best minimum {info['clock_second_best_ratio']:.2f}× that")
-    else:
-        clock_how = "given"
-    if info["heading_offset_found"] == "followed":
-        lo, hi = info["heading_offset_range_deg"]
-        head = (f"INS heading turned onto the GNSS track, its offset followed in time (±5 s running median of moving "
-                f"samples): median {info['heading_offset_deg']:+.2f} deg, range {lo:+.2f} … {hi:+.2f} deg, largest "
-                f"change {info['heading_offset_step_deg']:+.2f} deg within 10 s from "
-                f"{info['heading_offset_step_at_s']:.0f} s into the track; negative = clockwise")
-    else:
-        head = (f"INS heading {info['heading_offset_deg']:+.2f} deg from the direction of travel (given; "
-                "negative = clockwise), turned onto it")
-    note = (f"reference: GNSS/INS, clock offset {info['clock_offset_s']:+.3f} s ({clock_how}; the reference for "
-            f"radar time t is the sample at t + offset), {head}")
-    return poses, info, note
-
-
 def _write_outputs(odo, seq, seq_dir, out_dir, estimates, prev_ts, skipped, pace: Throughput, plot, title,
                    complete: bool, reference_offsets=(None, None)) -> RunResult:
-    from .metrics import covariance_jitter
-    from .trajectory import write_kitti, write_tum
+    from ..evaluation.metrics import covariance_jitter
+    from ..evaluation.trajectory import write_kitti, write_tum
 
     traj = odo.trajectory
     result = RunResult(traj.poses, traj.timestamps_us, estimates, None,

@@ -19,7 +19,7 @@ Faults, and what the odometer does about them (never a NaN, never a broken traje
   estimate is flagged ``"gap"``. Where the reference sweep is that far back and the motion
   prior can predict the motion over the interval, the new sweep is drawn in the predicted frame
   (Cartesian models), the graph measures the residual and the pose is the residual composed
-  with the prediction, its covariance carried through (`radar_odom.gaps`): the ±window of the
+  with the prediction, its covariance carried through (`radar_odom.odometry.gaps`): the ±window of the
   search is centred on the prediction instead of on standing still. With ``max_gap_s`` set, a
   longer gap is a hard stop instead: ``on_gap="raise"`` (default) raises `StreamError` (call
   `reset()` and go on); ``on_gap="reset"`` resets the stream itself, so that sweep starts a
@@ -45,7 +45,7 @@ Faults, and what the odometer does about them (never a NaN, never a broken traje
   follows the good matches. A bridged covariance is the match covariance plus the window
   covariance (first order: the prior pose it is relative to is that uncertain).
 
-Motion prior (`radar_odom.motion_prior`; on by default, ``motion_prior=False`` turns it off,
+Motion prior (`radar_odom.odometry.motion_prior`; on by default, ``motion_prior=False`` turns it off,
 a `MotionPriorConfig` tunes it). From the second estimate of a stream on, each match is fused in
 information form with a constant-velocity prediction from the previous estimates (and with
 external odometry, when `step` is given some): a direction the match leaves unconstrained is
@@ -54,7 +54,7 @@ given the prediction (innovation d² above a χ² gate) is not averaged in: the 
 prediction, flagged ``"gated"``; after two gated steps in a row the next failing match is taken
 as it is (``"prior_reset"``), so a wrong prediction cannot lock the odometer. An estimate whose
 motion comes mostly from the prior is flagged ``"prior_dominated"``. ``Estimate.pose`` and
-``.covariance`` are the fused values (the covariance as `radar_odom.motion_prior` reports it:
+``.covariance`` are the fused values (the covariance as `radar_odom.odometry.motion_prior` reports it:
 with the prior's information discounted, step 8 there); ``Estimate.measurement`` and ``.measurement_covariance``
 the match as it came from the graph (re-expressed like the pose when bridged). Degenerate
 estimates use the same prediction and never update the velocity. A bridged match is fused over
@@ -81,14 +81,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import ConfigError, ModelMismatchError, StreamError
+from ..errors import ConfigError, ModelMismatchError, StreamError
+from ..onnx_model import OnnxModel
+from ..scan import RadarScan
+from ..se2 import invert, se2, to_xyyaw, turn_frame
 from .gaps import GAP, NEW_SEGMENT, NEW_SEGMENT_GAP_S, SweepPeriod, compose_residual
 from .motion_prior import GATED, PRIOR_DOMINATED, ExternalOdometry, MotionPrior, MotionPriorConfig
 from .motion_prior import compose as compose_relative
 from .motion_prior import fuse as fuse_estimates
-from .onnx_model import OnnxModel
-from .scan import RadarScan
-from .se2 import invert, se2, to_xyyaw, turn_frame
 from .sweep_checks import (  # noqa: F401  (re-exported: their home was here)
     MIN_COVERAGE,
     NOISE_STRUCTURE,
@@ -236,7 +236,7 @@ class RadarOdometer:
             degenerate (``"partial_coverage"``, see `sweep_problem`).
         motion_prior: True (default: `MotionPriorConfig()`), False (off), or a
             `MotionPriorConfig`: fuse each match with a constant-velocity prediction (see the
-            module docstring and `radar_odom.motion_prior`).
+            module docstring and `radar_odom.odometry.motion_prior`).
         deskew: de-skew each sweep with the velocity of the motion so far (constant over the
             sweep) before matching, so that the pose refers to the sweep's first-azimuth instant
             (Cartesian models; see "Motion compensation" in the module docstring).
@@ -341,7 +341,7 @@ class RadarOdometer:
 
         ``odo.step(odo.prepare(scan))`` gives exactly what ``odo.step(scan)`` gives; preparing the
         next sweeps on a worker thread while `step` runs the graph overlaps the two (what
-        `radar_odom.pipeline.iter_estimates` does). Reads only the odometer's configuration.
+        `radar_odom.odometry.pipeline.iter_estimates` does). Reads only the odometer's configuration.
         """
         if not isinstance(scan, RadarScan):
             raise TypeError(f"prepare() takes a RadarScan, got {type(scan).__name__}")
@@ -354,7 +354,7 @@ class RadarOdometer:
         return PreparedSweep(scan, problem, x, ready=True, owner=self)
 
     def iter_estimates(self, source, *, prefetch: int = 2, on_error: str = "skip"):
-        """`radar_odom.pipeline.iter_estimates` with this odometer (see there)."""
+        """`radar_odom.odometry.pipeline.iter_estimates` with this odometer (see there)."""
         from .pipeline import iter_estimates
 
         return iter_estimates(source, self, prefetch=prefetch, on_error=on_error)
@@ -518,7 +518,7 @@ class RadarOdometer:
     def _match(self, scan: RadarScan, x: np.ndarray, ts: int, twist):
         """(pose, cov, new reference) of the new sweep against the reference, or None if non-finite.
 
-        Where the reference is further back than a gap (`radar_odom.gaps`) and the prior can
+        Where the reference is further back than a gap (`radar_odom.odometry.gaps`) and the prior can
         predict the motion, the sweep is drawn in the predicted frame and the measured residual
         composed with the prediction; the new reference is then the sweep in its own frame.
         Poses leave here in the vehicle's frame: a model with a mount yaw
