@@ -505,6 +505,49 @@ def test_zup_pose_files_drop_nan_and_conflicting_rows_by_line(tmp_path):
     assert stamps.tolist() == [1, 4, 5] and np.isfinite(values).all()
 
 
+def test_ground_truth_that_is_there_but_unused_says_why(tmp_path):
+    """A reversed header (every row keyed by the wrong columns) or a folder named radar_odometry.csv left
+    the recording without ground truth and said nothing: now a GroundTruthWarning says found but not used."""
+    def reversed_header(lines):
+        return [",".join(lines[0].split(",")[::-1])] + lines[1:]
+
+    oxford_recording(tmp_path / "rev", rows=reversed_header)
+    with pytest.warns(GroundTruthWarning, match=r"radar_odometry\.csv: found but not used: none of its 5 rows is "
+                                                r"keyed by two consecutive sweeps' file names"):
+        assert read_sequence(tmp_path / "rev").gt_absolute() is None
+    _, gt = oxford_recording(tmp_path / "dir")
+    gt.unlink()
+    gt.mkdir()
+    with pytest.warns(GroundTruthWarning, match=r"radar_odometry\.csv: found but not used: it is a folder"):
+        assert read_sequence(tmp_path / "dir").gt_absolute() is None
+
+
+def test_binary_ground_truth_is_a_sequence_error_not_a_decode_error(tmp_path):
+    """Random bytes in gt/radar_odometry.csv raised UnicodeDecodeError from the csv reader."""
+    from radar_odom.errors import SequenceError
+
+    _, gt = oxford_recording(tmp_path)
+    gt.write_bytes(b"\x00\x82" + np.random.default_rng(0).bytes(500))
+    with pytest.raises(SequenceError, match=r"radar_odometry\.csv: not a text CSV \(byte 0x82 at offset 1"):
+        read_sequence(tmp_path)
+
+
+@pytest.mark.parametrize("options, match", [
+    (dict(bogus_option=3), r"unknown sweep option 'bogus_option'; read_sequence passes only range_resolution_m"),
+    (dict(range_resolutoin_m=0.04), r"unknown sweep option 'range_resolutoin_m'"),
+    (dict(range_resolution_m=-0.04), r"range_resolution_m must be > 0 metres per bin"),
+    (dict(num_bins=2.5), r"num_bins must be an integer ≥ 2"),
+    (dict(max_pose_gap_s=-1), r"max_pose_gap_s must be a positive number of seconds"),
+    (dict(max_pose_gap_s=float("nan")), r"max_pose_gap_s must be a positive number of seconds"),
+])
+def test_read_sequence_checks_its_options_at_open(tmp_path, options, match):
+    """An unknown option failed only at the first sweep (a TypeError from load_scan); a negative
+    max_pose_gap_s was taken and would have dropped all Boreas/MulRan ground truth."""
+    oxford_recording(tmp_path)
+    with pytest.raises(ConfigError, match=match):
+        read_sequence(tmp_path, **options)
+
+
 # --------------------------------------------------------------------------- 8. pretrained names
 @pytest.mark.parametrize(
     "name", ["../../x", "../models/cart-0.4", "/etc/passwd", ".hidden", "cart-0.4/..", "a\\..\\b", "", "cart 0.4"]

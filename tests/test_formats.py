@@ -273,10 +273,58 @@ def test_an_explicit_format_that_the_folder_contradicts_warns(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         load_scan(png, format="oxford")
-        load_scan(png, format="boreas")  # a bare radar/ folder cannot tell Oxford from Boreas
         load_scan(png, format="mulran", range_resolution_m=0.0432)  # told the resolution: nothing to warn of
     # a folder that names its dataset for certain
     applanix = seq / "applanix"
     applanix.mkdir()
     with pytest.warns(FormatWarning, match=r"read as 'oxford' as asked, but its folder is laid out as 'boreas'"):
         load_scan(png, format="oxford")
+
+
+def test_boreas_asked_of_an_oxford_sweep_warns_by_folder_and_by_content(tmp_path):
+    """`read_sequence(oxford, format="boreas")` / `load_scan(oxford_png, format="boreas")` read 0.0596 m
+    bins instead of 0.0432 (steps 33 % long), silently, because a radar/ folder without applanix/ was taken
+    for a bare one. radar.timestamps beside radar/, a name that is the first azimuth's time and 3768 bins all
+    say Oxford; a Boreas sweep (named by its middle) read as Oxford in a bare folder says Boreas."""
+    import shutil
+    import warnings
+
+    from radar_odom import read_sequence
+    from radar_odom.errors import FormatWarning
+    from radar_odom.sim.writer import write_drive
+
+    seq = write_drive(tmp_path / "seq", seed=2, frames=2, progress=False)
+    png = sorted((seq / "radar").glob("*.png"))[0]
+    with pytest.warns(FormatWarning, match=r"sweeps read as 'boreas' as asked, but its folder is laid out as "
+                                           r"'oxford' \(radar\.timestamps lies beside radar/"):
+        load_scan(png, format="boreas")
+    with pytest.warns(FormatWarning, match=r"read as 'boreas' as asked, but its folder is laid out as 'oxford'"):
+        read_sequence(seq, format="boreas")  # said at open, before any sweep is decoded
+    bare = tmp_path / "bare" / "radar"
+    bare.mkdir(parents=True)
+    shutil.copy(png, bare / png.name)
+    with pytest.warns(FormatWarning) as rec:
+        load_scan(bare / png.name, format="boreas")
+    text = str(rec[0].message)
+    assert "file name is its first azimuth's time, as Oxford names sweeps" in text and "3768 range bins" in text
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_scan(bare / png.name, format="oxford")
+        load_scan(bare / png.name)  # detected: nothing was asked, nothing contradicted
+    # a Boreas sweep (named by its middle) read as Oxford in a bare folder
+    boreas_png, _ = boreas_sweep(tmp_path / "b", 1606417230036848)
+    shutil.rmtree(boreas_png.parent.parent / "applanix")
+    ts, counts, power = small_sweep(t0=1606417230036848 - 4 * 625)
+    save_png(boreas_png, oxford_image(ts, counts, [255] * 8, power))  # valid rows, as Oxford reads them
+    with pytest.warns(FormatWarning, match=r"read as 'oxford' as asked, but its file name is its middle azimuth's"):
+        load_scan(boreas_png, format="oxford")
+
+
+@pytest.mark.parametrize("bad", [None, 3, 1.5])
+def test_a_sweep_path_that_is_not_a_path_says_so(bad, tmp_path):
+    """`load_scan(None)` raised pathlib's TypeError from deep inside; bytes paths were refused."""
+    with pytest.raises(TypeError, match=rf"a sweep path must be a file path \(str, bytes or os.PathLike\), got "
+                                        rf"{type(bad).__name__}"):
+        load_scan(bad)
+    path = save_png(tmp_path / "radar" / f"{T0_US}.png", oxford_image(*small_sweep()[:2], [255] * 8, small_sweep()[2]))
+    assert load_scan(bytes(path)).timestamp_us == T0_US

@@ -152,51 +152,59 @@ def read_oxford_ground_truth(path) -> dict[tuple[int, int], np.ndarray]:
     """``{(destination_radar_ts, source_radar_ts): float64[3] (x, y, yaw)}`` from an Oxford gt CSV.
 
     Keyed earlier-then-later so a consecutive pair ``(ts[k], ts[k+1])`` looks its pose up
-    directly. Raises `SequenceError` on a missing column or a malformed row. A row holding a
-    NaN/inf pose, or two rows for the same pair that disagree, leave that pair without ground
-    truth (NaN) and issue one `GroundTruthWarning` naming the file and line numbers; rows
+    directly. Raises `SequenceError` on a file that is not UTF-8 text, a missing column or a
+    malformed row. A row holding a NaN/inf pose, or two rows for the same pair that disagree,
+    leave that pair without ground truth (NaN) and issue one `GroundTruthWarning` naming the file and line numbers; rows
     repeated identically are kept once.
     """
     path = Path(path)
     nonfinite: list[int] = []
     conflicts: list[tuple[int, int]] = []
-    with open(path, newline="") as f:
-        header = f.readline().strip().split(",")
-        missing = [c for c in GT_REQUIRED if c not in header]
-        if missing:
+    try:
+        lines = path.read_bytes().decode("utf-8-sig").splitlines()  # a BOM is harmless
+    except UnicodeDecodeError as exc:
+        raise SequenceError(
+            f"{path}: not a text CSV (byte 0x{exc.object[exc.start]:02x} at offset {exc.start} is not UTF-8 text); "
+            "the file is corrupt or not Oxford ground truth — re-copy it, or remove it to run without ground truth"
+        ) from None
+    except OSError as exc:
+        raise SequenceError(f"{path}: cannot read the ground truth ({exc.strerror or exc})") from None
+    header = (lines[0] if lines else "").strip().split(",")
+    missing = [c for c in GT_REQUIRED if c not in header]
+    if missing:
+        raise SequenceError(
+            f"{path}: ground-truth header lacks {', '.join(missing)}; expected the Oxford "
+            f"columns {','.join(GT_COLUMNS)}"
+        )
+    col = {name: header.index(name) for name in GT_REQUIRED}
+    out: dict[tuple[int, int], np.ndarray] = {}
+    first_line: dict[tuple[int, int], int] = {}
+    for lineno, line in enumerate(lines[1:], start=2):
+        if not line.strip():
+            continue
+        parts = line.strip().split(",")
+        try:
+            earlier = int(parts[col["destination_radar_timestamp"]])
+            later = int(parts[col["source_radar_timestamp"]])
+            pose = np.array([float(parts[col[c]]) for c in ("x", "y", "yaw")])
+        except (IndexError, ValueError) as exc:
             raise SequenceError(
-                f"{path}: ground-truth header lacks {', '.join(missing)}; expected the Oxford "
-                f"columns {','.join(GT_COLUMNS)}"
-            )
-        col = {name: header.index(name) for name in GT_REQUIRED}
-        out: dict[tuple[int, int], np.ndarray] = {}
-        first_line: dict[tuple[int, int], int] = {}
-        for lineno, line in enumerate(f, start=2):
-            if not line.strip():
-                continue
-            parts = line.strip().split(",")
-            try:
-                earlier = int(parts[col["destination_radar_timestamp"]])
-                later = int(parts[col["source_radar_timestamp"]])
-                pose = np.array([float(parts[col[c]]) for c in ("x", "y", "yaw")])
-            except (IndexError, ValueError) as exc:
-                raise SequenceError(
-                    f"{path}, line {lineno}: cannot read a ground-truth row ({exc}); expected "
-                    f"{len(header)} comma-separated numbers"
-                ) from None
-            key = (earlier, later)
-            if not (np.all(np.isfinite(pose)) and np.all(np.abs(pose[:2]) <= MAX_STEP_M)
-                    and abs(pose[2]) <= 2 * np.pi):  # a yaw of 1e20 or an x of 1e308 is a corrupt row
-                nonfinite.append(lineno)
+                f"{path}, line {lineno}: cannot read a ground-truth row ({exc}); expected "
+                f"{len(header)} comma-separated numbers"
+            ) from None
+        key = (earlier, later)
+        if not (np.all(np.isfinite(pose)) and np.all(np.abs(pose[:2]) <= MAX_STEP_M)
+                and abs(pose[2]) <= 2 * np.pi):  # a yaw of 1e20 or an x of 1e308 is a corrupt row
+            nonfinite.append(lineno)
+            pose = np.full(3, np.nan)
+        if key in out:
+            same = np.array_equal(out[key], pose, equal_nan=True)
+            if not same:
+                conflicts.append((first_line[key], lineno))
                 pose = np.full(3, np.nan)
-            if key in out:
-                same = np.array_equal(out[key], pose, equal_nan=True)
-                if not same:
-                    conflicts.append((first_line[key], lineno))
-                    pose = np.full(3, np.nan)
-            else:
-                first_line[key] = lineno
-            out[key] = pose
+        else:
+            first_line[key] = lineno
+        out[key] = pose
     if nonfinite or conflicts:
         import warnings
 

@@ -1,17 +1,39 @@
 """`load_scan`: one entry point for sweeps of every supported dataset, with format detection."""
 from __future__ import annotations
 
+import os
 import warnings
 from pathlib import Path
 
+import numpy as np
+
 from ..errors import FormatWarning
 from ..scan import RadarScan
+from ._layout import name_timestamp, to_microseconds
 from .boreas import POSES_RELPATH, load_boreas
 from .mulran import MULRAN_SWEEP_PERIOD_S, OXFORD_FORM_DIR, RAW_DIR, load_mulran
-from .oxford import load_oxford
+from .oxford import GT_RELPATH, load_oxford
 from .radiate import POLAR_DIR, load_radiate
 
 FORMATS = ("oxford", "boreas", "mulran", "radiate")
+# files only an Oxford recording keeps beside its radar/ folder (Boreas keeps applanix/ there)
+OXFORD_SIDE_FILES = ("radar.timestamps", GT_RELPATH)
+# range bins of the Oxford RobotCar radar (Navtech CTS350-X, 0.0432 m/bin, 163 m)
+OXFORD_NUM_BINS = 3768
+
+
+def sweep_path(path) -> Path:
+    """``path`` as a `Path`: str, os.PathLike, or bytes (decoded as the file system does).
+
+    Raises TypeError naming the type for anything else (None, a number, an open file, ...).
+    """
+    if isinstance(path, bytes):
+        path = os.fsdecode(path)
+    if not isinstance(path, (str, os.PathLike)):
+        raise TypeError(f"a sweep path must be a file path (str, bytes or os.PathLike), got {type(path).__name__} "
+                        f"{path!r:.60}")
+    path = os.fspath(path)
+    return Path(os.fsdecode(path) if isinstance(path, bytes) else path)
 
 
 def detect_format(path) -> str:
@@ -21,7 +43,7 @@ def detect_format(path) -> str:
     ``.../Navtech_Polar/*.png`` → ``"radiate"``; ``SEQ/radar/*.png`` with ``SEQ/applanix/``
     beside it → ``"boreas"``; anything else → ``"oxford"``.
     """
-    folder = Path(path).parent
+    folder = sweep_path(path).parent
     if folder.name in (RAW_DIR, OXFORD_FORM_DIR):
         return "mulran"
     if folder.name == POLAR_DIR:
@@ -61,10 +83,26 @@ def load_scan(
         ScanFormatError: missing, empty, non-PNG or truncated file; not 8-bit greyscale; wrong
             size; encoder counts not increasing; every row invalid; RADIATE: no usable time for
             the frame in ``Navtech_Polar.txt``.
+        TypeError: ``path`` is not a path (None, a number, ...).
+
+    Warns:
+        FormatWarning: an explicit ``format`` (without ``range_resolution_m``) that the folder
+            layout or the sweep itself contradicts (`_check_format_against_layout`,
+            `_check_format_against_content`); the sweep is read as asked.
     """
+    path = sweep_path(path)
     fmt = detect_format(path) if format is None else format
-    if format is not None and format in FORMATS and range_resolution_m is None:
+    check = format is not None and format in FORMATS and range_resolution_m is None
+    if check:
         _check_format_against_layout(path, format)
+    scan = _load(path, fmt, range_resolution_m=range_resolution_m, range_offset_m=range_offset_m,
+                 num_azimuths=num_azimuths, num_bins=num_bins, sweep_period_s=sweep_period_s)
+    if check:
+        _check_format_against_content(path, format, scan)
+    return scan
+
+
+def _load(path: Path, fmt, *, range_resolution_m, range_offset_m, num_azimuths, num_bins, sweep_period_s) -> RadarScan:
     if fmt == "oxford":
         return load_oxford(
             path,
@@ -99,18 +137,80 @@ def load_scan(
             num_bins=num_bins,
             sweep_period_s=sweep_period_s,
         )
-    raise ValueError(f"unknown radar format {format!r}; choose one of {', '.join(FORMATS)} or None")
+    raise ValueError(f"unknown radar format {fmt!r}; choose one of {', '.join(FORMATS)} or None")
+
+
+def layout_evidence(path) -> tuple[str, str] | None:
+    """(format, why) where the folder around a sweep names its dataset for certain, else None.
+
+    A MulRan or RADIATE folder, a Boreas sequence (``applanix/`` beside ``radar/``), an Oxford one
+    (``radar.timestamps`` or ``gt/radar_odometry.csv`` beside ``radar/``). A bare folder proves nothing.
+    """
+    path = Path(path)
+    found = detect_format(path)
+    if found != "oxford":  # "oxford" is detect_format's fallback, not a finding
+        return found, f"its folder is laid out as {found!r}"
+    folder = path.parent
+    if folder.name == "radar":
+        for rel in OXFORD_SIDE_FILES:
+            if (folder.parent / rel).exists():
+                return "oxford", (f"its folder is laid out as 'oxford' ({Path(rel).as_posix()} lies beside radar/, "
+                                  "as in Oxford recordings)")
+    return None
+
+
+def content_evidence(path, scan: RadarScan) -> list[tuple[str, str]]:
+    """(format, why) pairs that an Oxford-layout sweep's own content tells of its dataset.
+
+    The file name: Oxford names a sweep by its first azimuth's time, Boreas by its middle time
+    (told apart only where the valid rows span time, by a margin of a tenth of the span). The
+    width: 3768 range bins is the Oxford RobotCar radar's.
+    """
+    found = []
+    name = name_timestamp(path)
+    ts = np.asarray(scan.timestamps_us)[np.asarray(scan.valid)]
+    if name is not None and ts.size >= 2 and ts[-1] > ts[0]:
+        name_us = int(to_microseconds(np.array([name]))[0])
+        first, span = int(ts[0]), int(ts[-1]) - int(ts[0])
+        mid = first + span / 2
+        near, far = span / 10, span / 3
+        if abs(name_us - first) <= near and abs(name_us - mid) >= far:
+            found.append(("oxford", "its file name is its first azimuth's time, as Oxford names sweeps (Boreas "
+                                    "names the middle)"))
+        elif abs(name_us - mid) <= near and abs(name_us - first) >= far:
+            found.append(("boreas", "its file name is its middle azimuth's time, as Boreas names sweeps (Oxford "
+                                    "names the first)"))
+    if scan.num_bins == OXFORD_NUM_BINS:
+        found.append(("oxford", f"it has {OXFORD_NUM_BINS} range bins, as the Oxford RobotCar radar writes"))
+    return found
+
+
+def _warn_contradiction(where, format: str, reasons: list[tuple[str, str]]) -> None:
+    others = [(f, why) for f, why in reasons if f != format]
+    if not others:
+        return
+    said = "; ".join(why for _, why in others)
+    warnings.warn(
+        f"{where}: sweeps read as {format!r} as asked, but {said}; the range resolution and offset are {format}'s "
+        "defaults — leave format=None to detect it, or pass range_resolution_m= if it is this radar's",
+        FormatWarning, stacklevel=4)
 
 
 def _check_format_against_layout(path, format: str) -> None:
-    """A `FormatWarning` where ``format`` contradicts a layout the folder names for certain: a MulRan or
-    RADIATE folder, a Boreas sequence (``applanix/`` beside it). A bare folder proves nothing (the
-    loaders check what the content can tell: MulRan's header stamps are ns, Oxford's and Boreas's µs)."""
-    found = detect_format(path)
-    if found != format and found != "oxford":  # "oxford" is detect_format's fallback, not a finding
-        warnings.warn(
-            f"{path}: read as {format!r} as asked, but its folder is laid out as {found!r}; the range "
-            f"resolution is {format}'s default — pass range_resolution_m= if that is not this radar's, or "
-            "leave format=None to detect it",
-            FormatWarning, stacklevel=3)
+    """A `FormatWarning` where ``format`` contradicts the layout the folder names for certain
+    (`layout_evidence`). Like `_check_format_against_content`, it names the folder."""
+    found = layout_evidence(path)
+    if found is not None:
+        _warn_contradiction(Path(path).parent, format, [found])
 
+
+def _check_format_against_content(path, format: str, scan: RadarScan) -> None:
+    """A `FormatWarning` where an Oxford or Boreas sweep read as the other contradicts ``format`` by
+    its name or width (`content_evidence`); only where the folder did not already say so.
+
+    The message names the folder, not the file: a recording read with the wrong format gives one
+    line under Python's default warning filter, not one per sweep.
+    """
+    if format not in ("oxford", "boreas") or layout_evidence(path) is not None:
+        return
+    _warn_contradiction(Path(path).parent, format, content_evidence(path, scan))

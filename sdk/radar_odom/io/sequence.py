@@ -22,18 +22,21 @@ A pair without ground truth gives a NaN row; no ground truth at all gives ``None
 from __future__ import annotations
 
 import functools
+import inspect
+import math
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import SequenceError
+from ..errors import ConfigError, FormatWarning, GroundTruthWarning, SequenceError
 from ..scan import RadarScan
 from ..se2 import chain_relative
 from . import boreas, gnss_ins, mulran, oxford, radiate
 from ._layout import name_timestamp, to_microseconds
 from ._zup import nearest_poses, oxford_relative_from_zup
-from .scan_io import FORMATS, load_scan
+from .scan_io import FORMATS, layout_evidence, load_scan
 
 # MulRan keeps sweeps under sensor_data/radar/ in the release, at the top level in some copies;
 # Oxford-form copies come first because they carry real per-azimuth times and encoder angles.
@@ -171,24 +174,94 @@ def _sweep_folder(root: Path, fmt: str) -> Path:
     return root / mulran.RAW_DIR  # missing: reported by _sweep_files' caller
 
 
+def _gt_file(path: Path) -> bool:
+    """Whether a ground-truth file is there to read; a `GroundTruthWarning` where the name is taken
+    by something that is not a file (a folder, a broken link), which would otherwise pass as no ground truth."""
+    if path.is_file():
+        return True
+    if path.exists() or path.is_symlink():
+        what = "a folder" if path.is_dir() else "not a readable file (a broken link or a special file)"
+        warnings.warn(f"{path}: found but not used: it is {what}, not a ground-truth file; the recording is read "
+                      "without ground truth — put the file there or remove what is in its place",
+                      GroundTruthWarning, stacklevel=4)
+    return False
+
+
+def _warn_unused_gt(path: Path, why: str) -> None:
+    """A `GroundTruthWarning` for a ground-truth file that was read but matches none of the sweeps:
+    without it the recording would silently have no ground truth."""
+    warnings.warn(f"{path}: found but not used: {why} The recording is read without ground truth.",
+                  GroundTruthWarning, stacklevel=4)
+
+
 def _oxford_gt(root: Path, stamps_us: np.ndarray) -> np.ndarray | None:
     path = root / oxford.GT_RELPATH
-    if not path.is_file():
+    if not _gt_file(path):
         return None
     table = oxford.read_oxford_ground_truth(path)
     rel = np.full((len(stamps_us) - 1, 3), np.nan)
+    matched = 0
     for k, (a, b) in enumerate(zip(stamps_us[:-1].tolist(), stamps_us[1:].tolist())):
         pose = table.get((a, b))
         if pose is not None:
             rel[k] = pose
+            matched += 1
+    if table and len(rel) and not matched:  # rows left out one by one were warned of as they were read
+        _warn_unused_gt(path, (
+            f"none of its {len(table)} rows is keyed by two consecutive sweeps' file names "
+            "(destination_radar_timestamp, source_radar_timestamp); are its columns in another order than its "
+            "header says, or is it another recording's?"))
     return rel
 
 
 def _zup_gt(path: Path, reader, query_us: np.ndarray, max_gap_us: int) -> np.ndarray | None:
-    if not path.is_file():
+    if not _gt_file(path):
         return None
     stamps, poses = reader(path)
-    return oxford_relative_from_zup(nearest_poses(query_us, stamps, poses, max_gap_us))
+    rel = oxford_relative_from_zup(nearest_poses(query_us, stamps, poses, max_gap_us))
+    if len(stamps) and len(rel) and not np.isfinite(rel).all(axis=1).any():
+        _warn_unused_gt(path, (
+            f"no two consecutive sweeps have a pose stamp within max_pose_gap_s = {max_gap_us / 1e6:g} s of their "
+            "time; is it another recording's, or are its stamps in another unit or clock?"))
+    return rel
+
+
+# what read_sequence passes on to load_scan for every sweep
+LOAD_OPTIONS = tuple(
+    name for name, par in inspect.signature(load_scan).parameters.items() if par.kind is inspect.Parameter.KEYWORD_ONLY
+)
+
+
+def check_load_options(load_kwargs: dict) -> None:
+    """`ConfigError` now, at open, for a `load_scan` option that would fail at the first sweep: an
+    unknown name (a typo), a resolution or period that is not a positive number of metres / seconds,
+    a size that is not an integer ≥ 2, an offset that is not a finite number of metres."""
+    unknown = sorted(set(load_kwargs) - set(LOAD_OPTIONS))
+    if unknown:
+        raise ConfigError(f"unknown sweep option{'s' if len(unknown) > 1 else ''} {', '.join(map(repr, unknown))}; "
+                          f"read_sequence passes only {', '.join(LOAD_OPTIONS)} on to load_scan")
+    for name, value in load_kwargs.items():
+        if value is None:
+            continue
+        if name in ("num_azimuths", "num_bins"):
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 2:
+                raise ConfigError(f"{name} must be an integer ≥ 2 (or None), got {value!r}")
+            continue
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+                or not math.isfinite(value):
+            raise ConfigError(f"{name} must be a finite number (or None), got {value!r}")
+        if name != "range_offset_m" and value <= 0:
+            unit = "seconds" if name.endswith("_s") else "metres per bin"
+            raise ConfigError(f"{name} must be > 0 {unit} (or None), got {value!r}")
+
+
+def check_max_pose_gap_s(value) -> float:
+    """``max_pose_gap_s`` as a float, or `ConfigError`: a positive, finite number of seconds."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+            or not math.isfinite(value) or value <= 0:
+        raise ConfigError(f"max_pose_gap_s must be a positive number of seconds (the furthest a pose stamp may be "
+                          f"from a sweep's time; default 0.1), got {value!r}")
+    return float(value)
 
 
 def read_sequence(
@@ -205,13 +278,22 @@ def read_sequence(
         max_pose_gap_s: Boreas/MulRan: a sweep whose nearest pose stamp is further away than
             this has no ground truth (0.1 s: 1 m at 10 m/s, and under half the 0.25 s sweep
             period, so a neighbouring sweep's pose is never taken).
-        **load_kwargs: passed to `load_scan` for every sweep (e.g. ``range_resolution_m``).
+        **load_kwargs: passed to `load_scan` for every sweep (e.g. ``range_resolution_m``); checked
+            here (`check_load_options`).
 
     Raises:
+        ConfigError: an unknown or impossible sweep option, ``max_pose_gap_s`` not > 0.
         SequenceError: no radar PNGs, names that are not timestamps (RADIATE: frame numbers),
             unreadable ground truth; RADIATE: ``Navtech_Polar.txt`` missing, garbled, not
             increasing or without a line for a sweep.
+
+    Warns:
+        GroundTruthWarning: a ground-truth file that is there but not used (a folder in its place,
+            rows that match none of the sweeps), besides the rows it leaves out.
+        FormatWarning: an explicit ``format`` that the folder layout contradicts (as `load_scan`).
     """
+    check_load_options(load_kwargs)
+    max_pose_gap_s = check_max_pose_gap_s(max_pose_gap_s)
     root = Path(seq_dir)
     if not root.is_dir():
         raise SequenceError(f"{root}: not a folder; give a recording folder holding radar/*.png (Oxford, Boreas), "
@@ -229,6 +311,12 @@ def read_sequence(
         paths, stamps = radiate.radiate_sweeps(root)
         return Sequence(root, fmt, paths, stamps, None, load_kwargs)
     paths, stamps = _sweep_files(folder)
+    if format is not None and load_kwargs.get("range_resolution_m") is None:
+        found = layout_evidence(paths[0])
+        if found is not None and found[0] != fmt:  # said once here; load_scan says it again per folder
+            warnings.warn(f"{root}: read as {fmt!r} as asked, but {found[1]}; the range resolution and offset are "
+                          f"{fmt}'s defaults — leave format=None to detect it, or pass range_resolution_m= if it is "
+                          "this radar's", FormatWarning, stacklevel=2)
     gap_us = int(round(max_pose_gap_s * 1e6))
     if fmt == "oxford":
         rel = _oxford_gt(root, stamps)
