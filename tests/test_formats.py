@@ -328,3 +328,22 @@ def test_a_sweep_path_that_is_not_a_path_says_so(bad, tmp_path):
         load_scan(bad)
     path = save_png(tmp_path / "radar" / f"{T0_US}.png", oxford_image(*small_sweep()[:2], [255] * 8, small_sweep()[2]))
     assert load_scan(bytes(path)).timestamp_us == T0_US
+
+
+@pytest.mark.parametrize("fill, what", [
+    (0, r"400 of 400 valid rows hold azimuth times at or before 1970 \(the lowest: 0 µs\)"),
+    (-1, r"400 of 400 valid rows hold azimuth times at or before 1970 \(the lowest: -1 µs\)"),
+    (T0_US, r"all 400 valid rows hold the same azimuth time"),
+])
+def test_impossible_header_timestamps_are_refused(tmp_path, fill, what):
+    """Header times of all zeros or all 0xFF bytes (−1) were read as a sweep at 0 or −1 µs without a word,
+    although the file name carries the sweep's time. They are a corrupt header: ScanFormatError (a run skips
+    the sweep as unreadable, as it skips one whose header breaks the time order)."""
+    a, b = 400, 16
+    _, counts, power = small_sweep(a=a, b=b)
+    counts = np.arange(a) * 14
+    img = oxford_image([fill] * a, counts, [255] * a, power[:1].repeat(a, 0))
+    path = save_png(tmp_path / "radar" / f"{T0_US}.png", img)
+    with pytest.raises(ScanFormatError, match=rf"{T0_US}\.png: {what}.*\(its file name says {T0_US}\); the header's "
+                                              r"timestamps are corrupt"):
+        load_scan(path)

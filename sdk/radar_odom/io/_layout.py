@@ -245,6 +245,28 @@ def check_counts_increasing(counts: np.ndarray, valid: np.ndarray, source: str) 
         )
 
 
+def check_stamps_possible(stamps_us: np.ndarray, valid: np.ndarray, source: str) -> None:
+    """Raise `ScanFormatError` where the valid rows' azimuth times cannot be a sweep's: at or before
+    1970 (a header of zeros, or of 0xFF bytes: −1), or one time for every row (a sweep turns for
+    ~0.25 s). Read on, such a sweep would be stepped at time 0 or −1 µs; refused here it is skipped
+    as unreadable by a run, as a sweep whose header breaks the time order is (``bad_timestamp``).
+    The message gives the file name's time where it has one, the time the header should hold.
+    """
+    ts = stamps_us[valid]
+    if ts.size == 0:
+        return
+    if ts.min() > 0 and (ts.size < 2 or ts.max() > ts.min()):
+        return
+    name = name_timestamp(Path(source))
+    hint = "" if name is None else f" (its file name says {name})"
+    if ts.min() <= 0:
+        what = (f"{int((ts <= 0).sum())} of {ts.size} valid rows hold azimuth times at or before 1970 (the lowest: "
+                f"{int(ts.min())} µs)")
+    else:
+        what = f"all {ts.size} valid rows hold the same azimuth time {int(ts[0])} µs (a sweep takes ~0.25 s)"
+    raise ScanFormatError(f"{source}: {what}{hint}; the header's timestamps are corrupt — re-copy the sweep")
+
+
 def azimuths_from_counts(counts: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """float64[A] azimuths (rad) = count / 5600 · 2π, with invalid rows interpolated.
 
@@ -289,8 +311,10 @@ def scan_from_header_image(
     else:
         valid = np.ones(rows.counts.size, dtype=bool)
     check_counts_increasing(rows.counts, valid, source)
+    stamps_us = to_microseconds(rows.timestamps, reference=valid)
+    check_stamps_possible(stamps_us, valid, source)
     return RadarScan.from_arrays(
-        to_microseconds(rows.timestamps, reference=valid),
+        stamps_us,
         azimuths_from_counts(rows.counts, valid),
         rows.power_u8,
         valid=valid,
