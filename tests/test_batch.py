@@ -82,6 +82,16 @@ def test_bad_sweeps_are_named(sequence_model, scans):
         match_sequence(model, x)
     with pytest.raises(ModelMismatchError, match=r"takes \[T, 32, 32\]"):
         match_sequence(model, np.zeros((3, 64, 64), np.float32))
+    # an all-zero or constant image matched at a corner of the search window, without a word
+    x, _ = sequence_inputs(model, scans[:3])
+    for fill in (0.0, 0.5):
+        y = x.copy()
+        y[2] = fill
+        with pytest.raises(StreamError, match=rf"sweep array rows \[2\] are degenerate \(one value throughout, e.g. "
+                                              rf"row 2: {fill:g}"):
+            match_sequence(model, y)
+    with pytest.raises(StreamError, match=r"rows \[0, 1, 2\] are degenerate"):
+        match_sequence(model, np.zeros_like(x))
     for bad in (0, -2, 1.5, True):
         with pytest.raises(ConfigError, match="batch"):
             match_sequence(model, scans, batch=bad)

@@ -59,12 +59,35 @@ def _model(model, threads) -> OnnxModel:
     return m
 
 
+def check_array_inputs(x: np.ndarray) -> None:
+    """`StreamError` naming the rows of a graph-input array [T, ...] that cannot be matched, as the
+    RadarScan path refuses a degenerate sweep: NaN or infinite values, or an image that is one value
+    throughout (all zero, say). The graph matches a flat image against anything with full confidence at
+    a corner of its search window, so such a row would pass as a match."""
+    flat = x.reshape(len(x), -1)
+    if flat.shape[1] == 0:
+        return
+    nonfinite = np.flatnonzero(~np.isfinite(flat).all(axis=1))
+    if nonfinite.size:
+        raise StreamError(f"sweep array rows {nonfinite[:5].tolist()} hold NaN or infinite values; "
+                          "fix or drop those sweeps")
+    constant = np.flatnonzero(flat.max(axis=1) == flat.min(axis=1))
+    if constant.size:
+        more = f" and {constant.size - 5} more" if constant.size > 5 else ""
+        raise StreamError(
+            f"sweep array rows {constant[:5].tolist()}{more} are degenerate (one value throughout, e.g. row "
+            f"{int(constant[0])}: {float(flat[constant[0], 0]):g}: a blank image); match_sequence matches every "
+            "consecutive pair — fix or drop those sweeps, or step RadarScans with RadarOdometer (radar-odom run), "
+            "which bridges such sweeps")
+
+
 def sequence_inputs(model: OnnxModel, sweeps, *, min_valid_fraction: float = 0.5,
                     min_coverage: float = MIN_COVERAGE) -> tuple[np.ndarray, np.ndarray]:
     """(graph inputs float32[T, ...], timestamps int64[T]) of ``sweeps``, checked.
 
     ``sweeps``: RadarScans in time order, or an array of graph inputs [T, *input_shape[1:]]
-    (e.g. Cartesian images already made with `polar_to_cartesian`).
+    (e.g. Cartesian images already made with `polar_to_cartesian`). A degenerate sweep raises
+    `StreamError` naming it, in either form (`sweep_problem`; `check_array_inputs`).
     """
     info = model.info
     want = tuple(info.input_shape[1:])
@@ -75,10 +98,7 @@ def sequence_inputs(model: OnnxModel, sweeps, *, min_valid_fraction: float = 0.5
                 f"sweep array has shape {list(x.shape)}; model {model.path.name} takes "
                 f"[T, {', '.join(map(str, want))}] (T graph inputs along axis 0)"
             )
-        if not np.all(np.isfinite(x)):
-            bad = np.flatnonzero(~np.isfinite(x.reshape(len(x), -1)).all(axis=1))
-            raise ValueError(f"sweep array rows {bad[:5].tolist()} hold NaN or infinite values; "
-                             "fix or drop those sweeps")
+        check_array_inputs(x)
         x = np.ascontiguousarray(x, dtype=np.float32)
         stamps = np.arange(len(x), dtype=np.int64)
     else:
