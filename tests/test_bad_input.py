@@ -373,6 +373,20 @@ def test_one_odometer_stepped_from_two_threads_never_interleaves(odo_factory, dr
     assert "serialised" in RadarOdometer.__doc__ or "serialized" in RadarOdometer.__doc__
 
 
+@pytest.mark.parametrize("threads, match", [
+    (100000, r"threads=100000 is more than \d+ \(4 per CPU"), (-1, r"threads must be ≥ 1"), (0, r"must be ≥ 1"),
+    ("two", r"must be a whole number of threads ≥ 1 .* got str 'two'"), (1.5, r"got float 1\.5"), (True, r"got bool"),
+])
+def test_a_thread_count_that_is_not_one_is_a_config_error(threads, match):
+    """threads=100000 hung in onnxruntime, 'two' was reported as a corrupt model file (InvalidModelError),
+    -1 and 1.5 were taken silently."""
+    with pytest.raises(ConfigError, match=match):
+        RadarOdometer(pretrained("cart-0.4"), threads=threads)
+    with pytest.raises(ConfigError, match=match):
+        OnnxModel(pretrained("cart-0.4"), threads)
+    assert RadarOdometer(pretrained("cart-0.4"), threads=np.int64(1)) is not None
+
+
 # --------------------------------------------------------------------------- 6. numeric coercion
 def test_from_arrays_refuses_what_it_used_to_coerce():
     a, b = 8, 16

@@ -228,3 +228,19 @@ def test_run_help_lists_every_layout_and_bags_and_run_names_its_model(model_path
         assert layout in text, layout
     assert main(["run", str(drive), "--model", str(model_path), "-o", str(tmp_path / "o"), "--no-plot"]) == 0
     assert f"model: {model_path}" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("threads, match", [
+    ("100000", r"--threads=100000 is more than \d+ \(4 per CPU"),  # onnxruntime started them all: a hang
+    ("-1", r"--threads must be ≥ 1"), ("two", r"'two' is not a whole number of threads"),
+    ("1.5", r"'1.5' is not a whole number of threads"),
+])
+def test_run_refuses_a_thread_count_it_cannot_use(model_path, drive, tmp_path, capsys, threads, match):
+    """--threads 100000 hung the run, -1 was taken without a word: a usage error now, before any work."""
+    with pytest.raises(SystemExit) as exit_:
+        main(["run", str(drive), "--model", str(model_path), "-o", str(tmp_path / "o"), "--threads", threads])
+    assert exit_.value.code == 2
+    import re
+
+    assert re.search(match, capsys.readouterr().err)
+    assert not (tmp_path / "o").exists()

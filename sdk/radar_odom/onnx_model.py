@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InvalidModelError, ModelNotFoundError
+from .errors import ConfigError, InvalidModelError, ModelNotFoundError
 from .model_file import FORMAT, GEOMETRY_KEYS, ModelInfo, check_signature, profile_digest
 
 __all__ = ["FORMAT", "GEOMETRY_KEYS", "ModelInfo", "OnnxModel", "physical_cores", "profile_digest",
@@ -63,17 +63,45 @@ def physical_cores() -> int:
     return os.cpu_count() or 1
 
 
+# more workers than this per logical CPU only contend; onnxruntime starts every one it is asked for
+# (100000 hung a run), so a larger count is a mistake to report, not a request to honour
+MAX_THREADS_PER_CPU = 4
+
+
+def check_threads(threads, name: str = "threads") -> int | None:
+    """``threads`` as an int, None kept (the default: `physical_cores`), or `ConfigError` naming ``name``.
+
+    A whole number ≥ 1 and at most `MAX_THREADS_PER_CPU` × the logical CPUs here; a string, a float
+    (1.5 was truncated to 1), a bool or a negative count is refused, not coerced.
+    """
+    if threads is None:
+        return None
+    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)):
+        raise ConfigError(f"{name} must be a whole number of threads ≥ 1 (or None: one per physical core), got "
+                          f"{type(threads).__name__} {threads!r}")
+    cpus = os.cpu_count() or 1
+    cap = MAX_THREADS_PER_CPU * cpus
+    if threads < 1:
+        raise ConfigError(f"{name} must be ≥ 1 (or None: one per physical core), got {int(threads)}")
+    if threads > cap:
+        raise ConfigError(f"{name}={int(threads)} is more than {cap} ({MAX_THREADS_PER_CPU} per CPU, {cpus} CPUs "
+                          f"here); every one would be started and they would only contend — give at most {cap}, or "
+                          f"leave it out for one per physical core ({physical_cores()})")
+    return int(threads)
+
+
 def session_options(threads: int | None = None, enable_profiling: bool = False, profile_prefix=None):
     """onnxruntime ``SessionOptions`` for a one-sweep-at-a-time stream.
 
-    ``threads`` intra-op workers (default: `physical_cores`), one inter-op worker and sequential
+    ``threads`` intra-op workers (default: `physical_cores`; `check_threads`), one inter-op worker and sequential
     execution (the graph is a single chain, parallel branches would only contend for cores),
     all graph optimisations on. ``enable_profiling`` writes onnxruntime's per-node JSON trace.
     """
     import onnxruntime as ort
 
+    threads = check_threads(threads)
     so = ort.SessionOptions()
-    so.intra_op_num_threads = int(threads) if threads else physical_cores()
+    so.intra_op_num_threads = threads or physical_cores()
     so.inter_op_num_threads = 1
     so.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
     so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
@@ -95,6 +123,7 @@ class OnnxModel:
                  profile_prefix=None):
         import onnxruntime as ort
 
+        check_threads(threads)  # before the session: a bad count is not a corrupt file
         self.path = Path(path)
         if not self.path.is_file():
             raise ModelNotFoundError(

@@ -29,3 +29,21 @@ def help_formatter():
             return super()._get_help_string(action)
 
     return DefaultsHelp
+
+
+def threads_arg(text: str) -> int:
+    """argparse ``type`` of ``--threads``: a whole number ≥ 1, at most a few per CPU
+    (`radar_odom.onnx_model.check_threads`); anything else is a usage error naming the value."""
+    import argparse
+
+    from ..errors import ConfigError
+    from ..onnx_model import check_threads
+
+    try:
+        value = int(text.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of threads (≥ 1)") from None
+    try:
+        return check_threads(value, "--threads")
+    except ConfigError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None

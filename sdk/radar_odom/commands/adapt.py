@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import argparse
 
+from . import threads_arg
+
 HELP = "adapt a shipped model to your radar from its own recordings (no ground truth needed)"
 
 DESCRIPTION = HELP + """.
@@ -50,7 +52,8 @@ def register(subparsers) -> None:
     p.add_argument("--sweeps", default=None, metavar="A:B",
                    help="use sweeps A..B-1 of each recording only (Python slice, e.g. :200); default: all")
     p.add_argument("--topic", default=None, help="the radar topic of a ROS bag (default: its only radar topic)")
-    p.add_argument("--threads", type=int, default=None, help="torch and onnxruntime threads (default: all cores)")
+    p.add_argument("--threads", type=threads_arg, default=None,
+                   help="torch and onnxruntime threads (default: all cores)")
     p.add_argument("--resume", action="store_true", help="continue an interrupted run writing the same OUTPUT")
     p.add_argument("--force", action="store_true", help="overwrite OUTPUT if it exists")
     p.set_defaults(func=run)

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import argparse
 
+from . import threads_arg
+
 HELP = "calibrate a checkpoint's covariance on held-out drives (mean d² ≈ 3, per axis)"
 
 DESCRIPTION = HELP + """.
@@ -56,7 +58,7 @@ def register(subparsers) -> None:
                    help="temperature stage: use at most this many pairs, evenly spread (their volumes are kept)")
     p.add_argument("--batch", type=int, default=8, help="pairs per forward pass (default: %(default)s)")
     p.add_argument("--workers", type=int, default=2, help="processes simulating drives (default: %(default)s)")
-    p.add_argument("--threads", type=int, default=None, help="torch threads (default: all cores)")
+    p.add_argument("--threads", type=threads_arg, default=None, help="torch threads (default: all cores)")
     p.set_defaults(func=run)
 
 

@@ -1,6 +1,8 @@
 """``radar-odom demo``: simulate a short drive, run a shipped model on it, print metrics, save a plot."""
 from __future__ import annotations
 
+from . import threads_arg
+
 HELP = "simulate a short drive (held-out seed) and run a shipped model on it end to end"
 
 
@@ -35,7 +37,7 @@ def register(subparsers) -> None:
         default="radar-odom-demo",
         help="folder for the drive, trajectories and plot (default: ./radar-odom-demo)",
     )
-    p.add_argument("--threads", type=int, default=None, help="onnxruntime threads (default: physical cores)")
+    p.add_argument("--threads", type=threads_arg, default=None, help="onnxruntime threads (default: physical cores)")
     p.set_defaults(func=run)
 
 

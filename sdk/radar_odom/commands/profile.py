@@ -1,7 +1,7 @@
 """``radar-odom profile``: CPU latency per grid resolution, per stage and per operator class."""
 from __future__ import annotations
 
-from . import help_formatter
+from . import help_formatter, threads_arg
 
 HELP = "CPU latency per grid resolution: per stage, per operator class, peak memory, numpy-FFT reference"
 PROFILE_NAMES = ("cart-0.8", "cart-0.4", "cart-0.2")  # radar_odom.latency.DEFAULT_PROFILES, kept light
@@ -32,7 +32,7 @@ def register(subparsers) -> None:
                         "decoupled (yaw from the magnitude spectra, then one translation correlation); a model "
                         "given in --models is timed with the search its file names")
     p.add_argument(
-        "--threads", type=int, default=None, help="onnxruntime threads (default: physical cores)%(default).0s"
+        "--threads", type=threads_arg, default=None, help="onnxruntime threads (default: physical cores)%(default).0s"
     )
     p.add_argument("--steps", type=int, default=200, help="timed stream steps per model")
     p.add_argument("--warmup", type=int, default=20, help="untimed steps first")

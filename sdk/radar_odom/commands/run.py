@@ -1,6 +1,8 @@
 """``radar-odom run SEQ [--model M|NAME] [-o OUTDIR]``: odometry over a recorded sequence."""
 from __future__ import annotations
 
+from . import threads_arg
+
 HELP = ("odometry over a recording (Oxford layout, Boreas, MulRan, RADIATE, or a ROS 1/ROS 2 bag); writes "
         "trajectories, estimates and a plot")
 EXIT_OK, EXIT_ERROR, EXIT_SKIPPED = 0, 1, 3
@@ -33,7 +35,7 @@ def register(subparsers) -> None:
                    help="exported .onnx file, or the name of a shipped model (radar_odom.pretrained_names()); "
                         "default: cart-0.4 if shipped, else the first shipped model")
     p.add_argument("-o", "--output", default=None, help="output folder (default: ./run-<SEQ name>)")
-    p.add_argument("--threads", type=int, default=None, help="onnxruntime threads (default: physical cores)")
+    p.add_argument("--threads", type=threads_arg, default=None, help="onnxruntime threads (default: physical cores)")
     p.add_argument("--max-gap-s", type=float, default=None,
                    help="stop the run with an error at a larger time (s) between consecutive sweeps (default: "
                         "none; every gap is crossed, its estimate flagged 'gap' and listed at the end)")

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import argparse
 
+from . import threads_arg
+
 HELP = "train the masking network with pose supervision (or the raw / cfar / supervised-mask baselines)"
 
 DESCRIPTION = HELP + """.
@@ -124,7 +126,8 @@ def register(subparsers) -> None:
     g.add_argument("--no-mirror", action="store_true", help="disable the left/right mirror augmentation")
     g.add_argument("--no-swap", action="store_true", help="disable the swap-pair-order augmentation")
     g.add_argument("--seed", type=int, default=0, help="seed of initial weights, shuffling, augmentation")
-    g.add_argument("--threads", type=int, default=None, help="torch threads per process (default: cores / processes)")
+    g.add_argument("--threads", type=threads_arg, default=None,
+                   help="torch threads per process (default: cores / processes)")
     g.add_argument("--resume", action="store_true", help="continue from OUTPUT.state.pt")
     g.add_argument(
         "--init-from",
