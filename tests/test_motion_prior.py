@@ -325,6 +325,24 @@ def test_external_odometry_is_an_arc_with_a_full_rank_covariance():
         ExternalOdometry.coerce([1.0, 0.1])
 
 
+@pytest.mark.parametrize("field, value, match", [
+    ("speed_mps", "11", r"ExternalOdometry\.speed_mps must be a number \(float\), got str '11'"),
+    ("yaw_rate_rps", [0.1], r"ExternalOdometry\.yaw_rate_rps must be a number \(float\), got list"),
+    ("speed_std_mps", "0.5", r"ExternalOdometry\.speed_std_mps must be a number"),
+    ("lateral_std_mps", True, r"ExternalOdometry\.lateral_std_mps must be a number"),
+    ("speed_mps", float("nan"), r"speed_mps must be finite"),
+    ("yaw_rate_std_rps", -0.1, r"yaw_rate_std_rps must be a positive number"),
+])
+def test_external_odometry_names_a_field_that_is_not_a_number(field, value, match):
+    """ExternalOdometry(speed_mps='11') raised numpy's 'ufunc isfinite not supported' TypeError."""
+    from radar_odom.errors import ConfigError
+
+    kwargs = {"speed_mps": 10.0, field: value}
+    with pytest.raises(ConfigError, match=match):
+        ExternalOdometry(**kwargs)
+    assert ExternalOdometry(speed_mps=np.float32(11), yaw_rate_rps=0).speed_mps == 11
+
+
 def test_external_odometry_carries_what_the_radar_leaves_unconstrained():
     rng = np.random.default_rng(3)
     truth = speed_profile_rel(np.r_[np.full(6, 10.0), 10 - 2 * DT * np.arange(1, 9)])  # braking gently

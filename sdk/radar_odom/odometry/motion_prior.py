@@ -188,18 +188,22 @@ class ExternalOdometry:
     lateral_std_mps: float = 0.2
 
     def __post_init__(self):
+        from ..errors import ConfigError
+
         if self.speed_mps is None and self.yaw_rate_rps is None:
-            raise ValueError("ExternalOdometry needs speed_mps, yaw_rate_rps or both")
-        for name in ("speed_mps", "yaw_rate_rps"):
+            raise ConfigError("ExternalOdometry needs speed_mps, yaw_rate_rps or both")
+        for name in ("speed_mps", "yaw_rate_rps", "speed_std_mps", "yaw_rate_std_rps", "lateral_std_mps"):
             v = getattr(self, name)
-            if v is not None and not np.isfinite(v):
-                raise ValueError(f"ExternalOdometry.{name} must be finite, got {v!r}")
-        for name in ("speed_std_mps", "yaw_rate_std_rps", "lateral_std_mps"):
-            v = getattr(self, name)
-            if v is None and name == "speed_std_mps":
+            if v is None and name in ("speed_mps", "yaw_rate_rps", "speed_std_mps"):
                 continue
-            if not (np.isfinite(v) and v > 0):
-                raise ValueError(f"ExternalOdometry.{name} must be a positive number, got {v!r}")
+            # a string ('11', from a CSV or CAN decoder) reached np.isfinite as a raw numpy TypeError
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+                raise ConfigError(f"ExternalOdometry.{name} must be a number (float), got {type(v).__name__} {v!r}; "
+                                  "convert it first, e.g. float(value)")
+            if not np.isfinite(v):
+                raise ConfigError(f"ExternalOdometry.{name} must be finite, got {v!r}")
+            if name not in ("speed_mps", "yaw_rate_rps") and not v > 0:
+                raise ConfigError(f"ExternalOdometry.{name} must be a positive number, got {v!r}")
 
     @property
     def speed_std(self) -> float:
