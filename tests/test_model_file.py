@@ -62,6 +62,19 @@ def test_the_writer_refuses_what_the_reader_would(shipped):
         rewritten(info, form="both")
 
 
+def test_a_missing_profile_is_named_not_reported_as_a_format_mismatch(shipped):
+    """Without radar_odom.profile the message read "'radar_odom.format' is 'radar-odom-onnx/1', expected
+    'radar-odom-onnx/1'" (a ModelMismatchError): now the missing key is named (InvalidModelError)."""
+    from radar_odom.errors import ModelMismatchError
+
+    meta = {k: v for k, v in shipped[1].items() if k != "radar_odom.profile"}
+    with pytest.raises(InvalidModelError, match=r"m\.onnx: metadata lacks 'radar_odom\.profile'") as e:
+        ModelInfo.from_metadata(meta, source="m.onnx")
+    assert "expected" not in str(e.value)
+    with pytest.raises(ModelMismatchError, match=r"not a radar-odom model \(metadata 'radar_odom\.format' is None"):
+        ModelInfo.from_metadata({k: v for k, v in meta.items() if k != "radar_odom.format"}, source="m.onnx")
+
+
 def test_the_state_shape_follows_the_mode(shipped):
     info = ModelInfo.from_metadata(shipped[1])
     assert expected_state_shape(info.profile, info.input_shape) == (1, 2, 128, 65)

@@ -299,12 +299,15 @@ class ModelInfo:
         """
         if not isinstance(meta, dict):
             raise InvalidModelError(f"{source}: metadata must be a dict of strings, got {type(meta).__name__}")
-        if meta.get("radar_odom.format") != FORMAT or "radar_odom.profile" not in meta:
+        if meta.get("radar_odom.format") != FORMAT:
             raise ModelMismatchError(
                 f"{source}: not a radar-odom model (metadata 'radar_odom.format' is "
                 f"{meta.get('radar_odom.format')!r}, expected {FORMAT!r}); export one with "
                 "`radar-odom export model.pt`"
             )
+        # a radar-odom file without its profile is a damaged one, not a foreign one: the missing-key
+        # check below names it (folded into the format check, it read "is 'radar-odom-onnx/1', expected
+        # 'radar-odom-onnx/1'")
         bad = [k for k, v in meta.items() if not isinstance(k, str) or not isinstance(v, str)]
         if bad:
             raise InvalidModelError(f"{source}: metadata {bad[0]!r} is not text")
