@@ -59,6 +59,38 @@ def test_a_broken_gnss_ins_track_costs_the_metrics_not_the_run(radiate_with_gnss
     assert len((out / "trajectory.tum").read_text().splitlines()) == 5
 
 
+@pytest.mark.parametrize("offset", ["1e12", "-1e6", "4.5"])
+def test_a_clock_offset_off_the_track_leaves_the_reference_unused_and_writes_no_empty_ground_truth(
+        radiate_with_gnss, tiny_model, tmp_path, capsys, offset):
+    """--gt-time-offset 1e12 gave "5 of 5 steps lack ground truth (see the warnings)" with no warning, and an
+    empty ground_truth.tum written and listed: now the reference is not used, and the line says why."""
+    out = tmp_path / "out"
+    assert _run(radiate_with_gnss, tiny_model, out, f"--gt-time-offset={offset}") == 0
+    text = capsys.readouterr()
+    assert "reference: GNSS/INS present but not used (the clock offset" in text.out
+    assert "radar times outside the GNSS/INS track" in text.out and "lack ground truth" not in text.out
+    assert "no metrics: the GNSS/INS reference is not used" in text.out
+    assert not (out / "ground_truth.tum").exists() and "gt_tum" not in text.out
+
+
+def test_a_reused_output_folder_holds_this_runs_outputs_only(radiate_with_gnss, tiny_model, tmp_path, capsys):
+    """An earlier run's skipped.csv / ground_truth.tum / ground_truth.kitti / trajectory.png stayed beside the
+    new run's outputs in the same -o folder, read as this run's. The run removes its own file names that it did
+    not write this time, and nothing else."""
+    out = tmp_path / "out"
+    out.mkdir()
+    stale = ("skipped.csv", "ground_truth.tum", "ground_truth.kitti", "trajectory.png", "estimates.csv")
+    for name in stale:
+        (out / name).write_text("an earlier run's\n")
+    (out / "notes.txt").write_text("mine\n")
+    (out / "ground_truth.tum.bak").write_text("mine too\n")
+    assert _run(radiate_with_gnss, tiny_model, out, "--gt-time-offset", "1e12") == 0
+    assert sorted(p.name for p in out.iterdir()) == ["estimates.csv", "ground_truth.tum.bak", "notes.txt",
+                                                     "trajectory.kitti", "trajectory.tum"]
+    assert (out / "estimates.csv").read_text() != "an earlier run's\n"
+    assert "radar-odom run: warning" not in capsys.readouterr().err
+
+
 def test_an_unwritable_bag_out_is_refused_before_the_odometry(radiate_with_gnss, tiny_model, tmp_path, capsys):
     out = tmp_path / "out"
     assert _run(radiate_with_gnss, tiny_model, out, "--bag-out", str(tmp_path / "missing" / "odom")) == 1

@@ -144,6 +144,8 @@ def run(args) -> int:
     if result.reference_note:
         print(result.reference_note)
     text = format_metrics(result.metrics, result.step_errors)
+    if not text and result.reference_note.startswith("reference: GNSS/INS present but not used"):
+        text = "no metrics: the GNSS/INS reference is not used (see above)"
     print(text if text else "no ground truth in this recording: no metrics")
     gaps = [(i, e) for i, e in enumerate(result.estimates) if GAP in e.flags]
     if gaps:

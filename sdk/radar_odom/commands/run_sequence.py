@@ -18,6 +18,9 @@ drive. Outputs in ``out_dir``:
   missing pair, and the KITTI file (which has no timestamps) is not written.
 - ``skipped.csv`` (only when a sweep was skipped): index, file, reason and message of each.
 
+A run removes these files from ``out_dir`` where it did not write them this time (an earlier run's
+``skipped.csv`` or ground truth in the same folder), and nothing else there (`remove_stale_outputs`).
+
 Pace: the next sweeps are decoded, parsed and prepared (`RadarOdometer.prepare`) on a worker
 thread while the graph runs on the calling one (``prefetch`` sweeps ahead; 0: one after the
 other); the outputs are the same either way. ``RunResult.throughput`` holds the sweeps/s and
@@ -56,6 +59,10 @@ ESTIMATE_COLUMNS = (
     "meas_x_m", "meas_y_m", "meas_yaw_rad",
 )
 ON_ERROR = ("skip", "stop")
+# every file a run writes in out_dir, by name: those this run did not write are removed from there (a
+# skipped.csv or ground_truth.tum of an earlier run in the same folder read as this run's); nothing else is
+OUTPUT_FILES = ("trajectory.tum", "trajectory.kitti", "estimates.csv", "trajectory.png", "skipped.csv",
+                "ground_truth.tum", "ground_truth.kitti")
 
 
 @dataclass
@@ -313,7 +320,10 @@ def _write_outputs(odo, seq, seq_dir, out_dir, estimates, prev_ts, skipped, pace
         # them by time (TUM) or by line (KITTI); unknown past the first pair without ground truth
         known = np.all(np.isfinite(gt.reshape(n, -1)), axis=1)
         upto = n if known.all() else int(np.argmin(known))
-        result.files["gt_tum"] = write_tum(out_dir / "ground_truth.tum", traj.timestamps_us[:upto], gt[:upto])
+        if upto >= 2:  # an empty (or one-pose) file listed as the ground truth would look like a result
+            result.files["gt_tum"] = write_tum(out_dir / "ground_truth.tum", traj.timestamps_us[:upto], gt[:upto])
+        else:
+            result.problems.append("ground_truth.tum not written: the ground truth is unknown from the second sweep on")
         if known.all():
             result.files["gt_kitti"] = write_kitti(out_dir / "ground_truth.kitti", gt)
     if plot:
@@ -324,4 +334,24 @@ def _write_outputs(odo, seq, seq_dir, out_dir, estimates, prev_ts, skipped, pace
             )
         except (RadarOdomError, OSError, ValueError) as exc:  # the trajectory files are written already
             result.problems.append(f"plot not drawn: {exc}")
+    result.problems.extend(remove_stale_outputs(out_dir, result.files.values()))
     return result
+
+
+def remove_stale_outputs(out_dir, written) -> list[str]:
+    """Remove the files of `OUTPUT_FILES` in ``out_dir`` that are not in ``written`` (an earlier run's), so the
+    folder holds this run's outputs only; returns a line per file that could not be removed. Only those names,
+    only plain files: whatever else the folder holds is left alone."""
+    out_dir = Path(out_dir)
+    keep = {Path(p).name for p in written if Path(p).parent == out_dir}
+    problems = []
+    for name in OUTPUT_FILES:
+        path = out_dir / name
+        if name in keep or path.is_symlink() or not path.is_file():
+            continue
+        try:
+            path.unlink()
+        except OSError as exc:
+            problems.append(f"{path}: an earlier run's output, not removed ({exc.strerror or exc}); it is not "
+                            "this run's")
+    return problems

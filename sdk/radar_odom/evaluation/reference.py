@@ -60,6 +60,7 @@ def gnss_reference(track, timestamps_us, est_poses, time_offset_s=None, heading_
         info.update(clock_offset_s=float(time_offset_s), clock_offset_found="given")
     # the track has holes of up to 0.8 s (shared drive): interpolating a car across them errs by centimetres
     poses = gnss_ins.poses_at(track, timestamps_us, info["clock_offset_s"], heading, max_sample_gap_s=1.0)
+    check_overlap(track, timestamps_us, poses, info["clock_offset_s"], info["clock_offset_found"])
     if info["clock_offset_found"] == "estimated":
         clock_how = (f"estimated from the odometry's yaw rate and speed over {info['clock_pairs']} pairs, cost "
                      f"{info['clock_cost']:.3g}, next-best minimum {info['clock_second_best_ratio']:.2f}× that")
@@ -79,3 +80,23 @@ def gnss_reference(track, timestamps_us, est_poses, time_offset_s=None, heading_
     return poses, info, note
 
 
+
+
+def check_overlap(track, timestamps_us, poses, offset_s: float, found: str) -> None:
+    """`SequenceError` where the clock offset leaves fewer than two radar times on the track: an offset
+    of 1e12 s gave an all-NaN reference that passed as "9 of 9 steps lack ground truth" and an empty
+    ground_truth.tum. The caller then leaves the reference unused and says why."""
+    n = len(timestamps_us)
+    known = int(np.isfinite(np.asarray(poses).reshape(n, -1)).all(axis=1).sum()) if n else 0
+    if known >= 2 or n < 2:
+        return
+    t = np.asarray(timestamps_us, dtype=np.int64)
+    shift_us = offset_s * 1e6
+    track_s = (track.times_us[-1] - track.times_us[0]) / 1e6
+    start_s = (t[0] + shift_us - track.times_us[0]) / 1e6  # where the radar's first time falls on the track
+    raise SequenceError(
+        f"the clock offset {offset_s:+.6g} s ({found}) puts {n - known} of the {n} radar times outside the GNSS/INS "
+        f"track or in its gaps: the radar's first time falls {start_s:+.6g} s from the track's start, which spans "
+        f"{track_s:.1f} s; give an offset that puts the drive on the track (--gt-time-offset S; the reference for "
+        "radar time t is the sample at t + offset), or 'auto' to estimate it"
+    )
