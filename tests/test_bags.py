@@ -251,3 +251,13 @@ def test_real_oxford_mcap_runs_like_the_pngs(real_data_dir, tmp_path, capsys):
     cells = (j @ cov_b[0] @ j)
     assert (c[0], c[7], c[35], c[1], c[5], c[11]) == pytest.approx(
         (cells[0, 0], cells[1, 1], cells[2, 2], cells[0, 1], cells[0, 2], cells[1, 2]), rel=1e-6, abs=1e-15)
+
+
+def test_an_unknown_bag_option_is_named_with_the_valid_ones(tmp_path):
+    """open_bag(p, range_resolutoin_m=0.1) raised PolarImageGeometry's raw TypeError."""
+    from radar_odom.errors import ConfigError
+    from radar_odom.io.bag import open_bag
+
+    with pytest.raises(ConfigError, match=r"unknown bag option 'range_resolutoin_m'; open_bag takes "
+                                          r"range_resolution_m, .*sweep_period_s"):
+        open_bag(tmp_path / "b.mcap", range_resolutoin_m=0.1)

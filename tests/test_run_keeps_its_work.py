@@ -283,3 +283,50 @@ def test_train_defaults_to_the_shipped_models_pose_loss():
 
     assert default_pose_loss(None) == default_pose_loss("fast") == "ce"  # every shipped model's
     assert default_pose_loss("decoupled") == "mse"  # the one loss the decoupled search takes
+
+
+@pytest.mark.torch
+@pytest.mark.parametrize("where", ["/proc/m.onnx", "/proc/no/such/m.onnx", "folder"])
+def test_export_refuses_an_output_it_cannot_write_before_exporting(recorded_exports, tmp_path, monkeypatch, capsys,
+                                                                     where):
+    """-o /proc/m.onnx raised FileNotFoundError from mkstemp after the whole export (a traceback)."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "folder").mkdir()
+    assert main(["export", "cart-0.4", "-o", where, "--force"]) == 1
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "radar-odom export: error:" in err
+    assert ("is a folder" in err) if where == "folder" else ("give -o a writable place" in err)
+    assert not recorded_exports
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["--frames", "9223372036854775808"], r"frames must be an integer from 1 to 100000"),
+    (["--frames", "0"], r"frames must be an integer from 1 to 100000"),
+    (["--seed", "-1"], r"seed must be an integer from 0 to"),
+    (["--seed", str(2**64)], r"seed must be an integer from 0 to"),
+    (["--frames", "2", "AT_A_FILE"], r"exists and is not a folder"),
+    (["--frames", "2", "/proc/radar_sim"], r"cannot create the sequence folder"),
+])
+def test_simulate_refuses_what_it_cannot_write_before_simulating(tmp_path, capsys, argv, match):
+    """--frames 2**63 ran until the disk filled; an OUT that is a file, or under /proc, ended in a traceback."""
+    (tmp_path / "f").write_text("a file\n")
+    out = [a.replace("AT_A_FILE", str(tmp_path / "f")) for a in argv]
+    if not any(a.startswith(("/", str(tmp_path))) for a in out):
+        out = [str(tmp_path / "sim"), *out]
+    assert main(["simulate", *out, "--no-progress"]) == 1
+    err = capsys.readouterr().err
+    import re
+
+    assert re.search(match, err) and "Traceback" not in err
+    assert not (tmp_path / "sim" / "radar").exists()
+
+
+def test_simulate_refuses_a_drive_the_disk_cannot_hold(tmp_path, capsys, monkeypatch):
+    import shutil
+    from collections import namedtuple
+
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: usage(10**9, 10**9 - 10**6, 10**6))
+    assert main(["simulate", str(tmp_path / "sim"), "--frames", "5", "--no-progress"]) == 1
+    assert "5 sweeps take about 0.0 GB (700 kB each) and the disk has 0.0 GB free" in capsys.readouterr().err
+    assert not (tmp_path / "sim" / "radar").exists()

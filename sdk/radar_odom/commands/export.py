@@ -83,6 +83,7 @@ def run(args) -> int:
         out = stem.with_name(f"{stem.name}{tag}.onnx")
     if out.exists() and not args.force:
         raise OutputError(f"{out} exists; pass --force to overwrite it, or -o to write elsewhere")
+    check_output_path(out)
     common = dict(form=form, opset=args.opset, verify=not args.no_verify, search=search,
                   exporter=args.exporter)
     if settings is not None:
@@ -100,6 +101,32 @@ def run(args) -> int:
     report = export_checkpoint(ckpt, out, **common)
     print(report.summary())
     return 0
+
+
+def check_output_path(out) -> None:
+    """`OutputError` before the export (seconds to minutes of tracing and verifying) where ``out`` cannot be
+    written: a folder in its place, a parent that cannot be created or is not writable (``-o /proc/m.onnx``
+    raised FileNotFoundError from mkstemp after the whole export)."""
+    import tempfile
+    from pathlib import Path
+
+    from ..errors import OutputError
+
+    out = Path(out)
+    if out.is_dir():
+        raise OutputError(f"{out}: is a folder; give -o the .onnx file to write")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"{out}: cannot create its folder {out.parent} ({exc.strerror or exc}); give -o a "
+                          "writable place") from None
+    try:  # the export writes a temporary file beside the output first: try that now (os.access is not
+        # enough: root may "write" /proc, which takes no new files)
+        with tempfile.TemporaryFile(prefix=f".{out.name}.", suffix=".probe", dir=out.parent):
+            pass
+    except OSError as exc:
+        raise OutputError(f"{out}: cannot write in its folder {out.parent} ({exc.strerror or exc}); give -o a "
+                          "writable place") from None
 
 
 def shipped_export(name: str) -> dict | None:

@@ -200,7 +200,18 @@ class BagSequence(Sequence):
 def open_bag(path, topic: str | None = None, **geometry) -> BagSequence:
     """A radar topic of a bag as a `BagSequence`. ``geometry``: `PolarImageGeometry` fields
     (``range_resolution_m``, ``range_offset_m``, ``sweep_period_s``, ``stamp``,
-    ``azimuth_offset_rad``, ``encoder_size``). ``topic`` None: the bag's only radar topic."""
+    ``azimuth_offset_rad``, ``encoder_size``). ``topic`` None: the bag's only radar topic.
+
+    Raises `ConfigError` for an option that is not one of those fields (a typo), before the bag is opened."""
+    import dataclasses
+
+    from ..errors import ConfigError
+
+    known = [f.name for f in dataclasses.fields(PolarImageGeometry) if f.init]
+    unknown = sorted(set(geometry) - set(known))
+    if unknown:
+        raise ConfigError(f"unknown bag option{'s' if len(unknown) > 1 else ''} {', '.join(map(repr, unknown))}; "
+                          f"open_bag takes {', '.join(known)}")
     return BagSequence(path, topic, PolarImageGeometry(**geometry))
 
 

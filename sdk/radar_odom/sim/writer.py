@@ -21,6 +21,35 @@ from .simulator import Simulator
 LABELS_DIR = "labels"
 
 
+# bytes one simulated sweep takes on disk: its Oxford-layout PNG and its label (570 kB measured), with margin
+BYTES_PER_FRAME = 700_000
+
+
+def check_output_folder(seq: Path, frames: int) -> None:
+    """`OutputError` before anything is simulated where ``seq`` cannot hold the drive: a file in its place
+    (or in its path), a folder that cannot be created or written, or less free space than ``frames`` sweeps
+    take (`BYTES_PER_FRAME` each)."""
+    import os
+    import shutil
+
+    from ..errors import OutputError
+
+    if seq.exists() and not seq.is_dir():
+        raise OutputError(f"{seq}: exists and is not a folder; give simulate a folder to write (new or existing)")
+    try:
+        seq.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"{seq}: cannot create the sequence folder ({exc.strerror or exc}); give another "
+                          "path") from None
+    if not os.access(seq, os.W_OK):
+        raise OutputError(f"{seq}: the folder is not writable; give another path")
+    need = frames * BYTES_PER_FRAME
+    free = shutil.disk_usage(seq).free
+    if need > free:
+        raise OutputError(f"{seq}: {frames} sweeps take about {need / 1e9:.1f} GB ({BYTES_PER_FRAME / 1e3:.0f} kB "
+                          f"each) and the disk has {free / 1e9:.1f} GB free; simulate fewer frames or free space")
+
+
 def write_drive(out_dir, seed: int, frames: int, scenario: str | Scenario = "urban",
                 config: SimConfig | None = None, progress: bool = True) -> Path:
     """Simulate a drive and write it to ``out_dir`` (created if missing).
@@ -34,6 +63,7 @@ def write_drive(out_dir, seed: int, frames: int, scenario: str | Scenario = "urb
 
     sim = Simulator(seed, frames, scenario, config)
     seq = Path(out_dir)
+    check_output_folder(seq, frames)
     planned = {f"{int(sim.timestamps_us(k)[0])}.png" for k in range(frames)}
     foreign = [p.name for p in (seq / "radar").glob("*.png") if p.name not in planned]
     if foreign:
