@@ -412,6 +412,8 @@ def test_missing_or_garbled_sample_files_are_skipped_with_a_count(tmp_path, driv
         ("\n".join(good.splitlines()[:4] + ["0,0,0,0"] + good.splitlines()[5:]), r"line 5: .* is not a rotation"),
         ("\n".join(good.splitlines()[:4] + ["nan,0,0,1"] + good.splitlines()[5:]), r"line 5: expected 4"),
         ("\n".join(["nan,-3.2,117"] + good.splitlines()[1:]), r"line 1: expected 3 comma-separated numbers"),
+        # a fix at (0, 0) was taken and the track jumped thousands of km
+        ("\n".join(["0.0,0.0,0.0"] + good.splitlines()[1:]), r"line 1: latitude and longitude are exactly 0"),
     ]:
         sample.write_text(text)
         with pytest.warns(GroundTruthWarning, match=match) as record:

@@ -202,6 +202,9 @@ def _read_sample(path: Path, listed: str) -> tuple[float, ...]:
     lat, lon = out[0], out[1]
     if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
         raise SequenceError(f"{path}, line 1: latitude {lat}, longitude {lon} are not degrees on the Earth ({listed})")
+    if lat == 0.0 and lon == 0.0:  # a receiver's placeholder without a fix; read, the track jumps thousands of km
+        raise SequenceError(f"{path}, line 1: latitude and longitude are exactly 0 (a receiver without a fix writes "
+                            f"that) ({listed})")
     if np.linalg.norm(out[3:7]) < 0.5:  # unit in the files; a near-zero one has no rotation
         raise SequenceError(f"{path}, line 5: quaternion {out[3:7]} is not a rotation (norm ≈ 0) ({listed})")
     return tuple(out)
