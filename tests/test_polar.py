@@ -269,3 +269,35 @@ def test_bad_arrays_get_typed_errors():
         P.polar_to_cartesian_array(np.zeros((10, 20)), az, 0.0432, 0.0, 0.5, 0)
     with pytest.raises(ValueError, match="out must be"):
         P.polar_to_cartesian_array(np.zeros((10, 20)), az, 0.0432, 0.0, 0.5, 16, out=np.zeros((16, 16)))
+
+
+# ------------------------------------------------------------------ dropped rows
+def test_fill_dropped_rows_interpolates_short_runs_in_azimuth_and_wraps_at_the_seam():
+    from radar_odom.polar import fill_dropped_rows
+
+    a = 12
+    az = np.arange(a) * (2 * np.pi / a) + 0.1
+    power = np.stack([np.full(3, k, dtype=np.float32) for k in range(a)])  # row k holds k
+    valid = np.ones(a, bool)
+    assert fill_dropped_rows(power, az, valid) is power  # nothing to do: the input itself
+    valid[[3, 5, 6, 11]] = False
+    power[~valid] = 0.0
+    out = fill_dropped_rows(power, az, valid)
+    assert out[3, 0] == pytest.approx(3.0)               # halfway between rows 2 and 4
+    assert out[5, 0] == pytest.approx(5.0)                # a third of the way from row 4 (4) to 7 (7)
+    assert out[6, 0] == pytest.approx(6.0)
+    assert out[11, 0] == pytest.approx(0.5 * (10 + 0))    # across the seam: rows 10 and 0
+    assert np.array_equal(out[valid], power[valid])
+    assert power[3, 0] == 0.0  # the caller's array is not touched
+
+
+def test_fill_dropped_rows_leaves_long_runs_empty():
+    from radar_odom.polar import MAX_FILLED_RUN_ROWS, fill_dropped_rows
+
+    a = 20
+    az = np.arange(a) * (2 * np.pi / a)
+    power = np.ones((a, 2), np.float32)
+    valid = np.ones(a, bool)
+    valid[4: 4 + MAX_FILLED_RUN_ROWS + 1] = False
+    power[~valid] = 0.0
+    assert np.array_equal(fill_dropped_rows(power, az, valid), power)

@@ -280,9 +280,54 @@ def polar_to_cartesian(scan, resolution_m: float, width_px: int, near_range_m: f
         maps = moving_sample_maps(az, azimuth_times_s(scan), twist, frame_pose, scan.num_bins,
                                   scan.range_resolution_m, scan.range_offset_m, resolution_m, width_px)
     return _remap(
-        scan.power, az, scan.range_resolution_m, scan.range_offset_m, resolution_m, width_px, near_range_m, out,
-        source=scan.source, maps=maps,
+        fill_dropped_rows(scan.power, az, scan.valid), az, scan.range_resolution_m, scan.range_offset_m,
+        resolution_m, width_px, near_range_m, out, source=scan.source, maps=maps,
     )
+
+
+def filled_power(scan) -> np.ndarray:
+    """float32[A, B]: a `RadarScan`'s power with its short runs of dropped rows filled
+    (`fill_dropped_rows`), as every graph input draws it."""
+    return fill_dropped_rows(scan.power, _sampling_azimuths(scan), scan.valid)
+
+
+# Dropped azimuth rows in runs of at most this many are filled from their neighbours. The beam
+# is ~2° wide, so a row between two valid ones 2-3 rows apart (0.9° each on a Navtech) holds
+# nearly what they hold; a longer run is a real hole in the sweep and stays empty.
+MAX_FILLED_RUN_ROWS = 2
+
+
+def fill_dropped_rows(power: np.ndarray, az_rad: np.ndarray, valid: np.ndarray,
+                      max_run: int = MAX_FILLED_RUN_ROWS) -> np.ndarray:
+    """``power`` float[A, B] with each run of at most ``max_run`` invalid rows (azimuth order,
+    wrapping at the seam) replaced by the linear interpolation, in azimuth, of the valid rows on
+    either side; longer runs stay as they are (zero). The input when every row is valid.
+
+    Why: an invalid row is zero. Drawn as it is, a radar that drops the same rows in every sweep
+    (every other row, every third) paints a stripe pattern fixed to the sensor into every image,
+    and that pattern matches itself best at zero motion: the matches read as standing still.
+    """
+    valid = np.asarray(valid, dtype=bool)
+    if valid.all() or valid.sum() < 2:
+        return power
+    a = valid.size
+    v_idx = np.flatnonzero(valid)
+    rows = np.arange(a)
+    # the valid rows before and after each row, wrapping (index into v_idx)
+    after = np.searchsorted(v_idx, rows, side="left") % v_idx.size
+    before = (after - 1) % v_idx.size
+    prev_row, next_row = v_idx[before], v_idx[after]
+    run = (next_row - prev_row - 1) % a  # invalid rows between the two valid neighbours
+    fill = ~valid & (run <= max_run)
+    if not fill.any():
+        return power
+    az = np.asarray(az_rad, dtype=np.float64)
+    span = (az[next_row] - az[prev_row]) % TWO_PI
+    into = (az - az[prev_row]) % TWO_PI
+    w = np.where(span > 0, into / np.where(span > 0, span, 1.0), 0.5)[fill, None]
+    out = np.array(power, dtype=np.float32, copy=True)
+    out[fill] = (1.0 - w) * out[prev_row[fill]] + w * out[next_row[fill]]
+    return out
 
 
 def azimuth_times_s(scan) -> np.ndarray:

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..polar import polar_to_cartesian
+from ..polar import filled_power, polar_to_cartesian
 from ..scan import RadarScan
 
 # Below this displacement over one sweep (m, and the yaw's arc at the grid's edge) de-skew moves no
@@ -69,7 +69,7 @@ def graph_input(scan: RadarScan, info, motion: SweepMotion | None = None) -> np.
             raise ValueError("a polar-input model reads the sweep as recorded: it cannot be de-skewed or moved")
         spec = info.polar_input or {}
         nb, f = int(spec.get("num_bins", scan.num_bins)), int(spec.get("bin_factor", 1))
-        power = scan.power[:, : nb * f]
+        power = filled_power(scan)[:, : nb * f]  # short runs of dropped rows filled, as Cartesian
         if f > 1:  # mean over groups of f range bins, as the exporter's model was fed
             power = power.reshape(power.shape[0], nb, f).mean(axis=2)
         # the graph assumes row a at azimuth 2π·a/A: start from the row nearest 0 rad
