@@ -238,3 +238,63 @@ def test_mask_downsample_runs_the_unet_on_the_pooled_image():
         m = model.mask(torch.rand(2, 64, 64))
     assert seen == [(2, 1, 16, 16)] and m.shape == (2, 64, 64)
     assert float(m.min()) >= 0 and float(m.max()) <= 1
+
+
+# ------------------------------------------------------------------ band limits of the features
+def test_blur_images_is_a_normalised_gaussian_and_zero_sigma_is_no_kernel():
+    from radar_odom_export.model import blur_images, gaussian_kernel_1d
+
+    assert gaussian_kernel_1d(0.0).tolist() == [1.0]
+    taps = gaussian_kernel_1d(2.0)
+    assert taps.numel() == 13 and float(taps.sum()) == pytest.approx(1.0)
+    img = torch.zeros(1, 41, 41)
+    img[0, 20, 20] = 1.0
+    out = blur_images(img, taps)[0]
+    assert float(out.sum()) == pytest.approx(1.0, rel=1e-5)
+    assert torch.allclose(out[20, 14:27], taps * taps[6], atol=1e-7)  # the row through the centre
+    assert torch.allclose(out, out.T, atol=1e-7)
+
+
+def _shift_match(profile, shift_px, sensor_blob: float):
+    """(dx, dy) m read by a raw-masking model between a random scene and the same scene moved by
+    ``shift_px`` (rows, cols), both with the same broad blob about the sensor added."""
+    rng = np.random.default_rng(3)
+    w = profile.width_px
+    scene = np.zeros((w + 40, w + 40), np.float32)
+    scene[rng.integers(0, w + 40, 120), rng.integers(0, w + 40, 120)] = 1.0
+    yy, xx = np.mgrid[:w, :w] - (w - 1) / 2
+    blob = sensor_blob * np.exp(-(xx ** 2 + yy ** 2) / (2 * (w / 6) ** 2)).astype(np.float32)
+    a = scene[20:20 + w, 20:20 + w] + blob
+    b = scene[20 + shift_px[0]:20 + shift_px[0] + w, 20 + shift_px[1]:20 + shift_px[1] + w] + blob
+    model = MaskedCorrelator(profile, masking="raw").eval()
+    with torch.no_grad():
+        pose, _ = model(torch.from_numpy(a)[None], torch.from_numpy(b)[None])
+    return pose[0, :2].numpy()
+
+
+def test_the_highpass_keeps_a_sensor_centred_blob_from_pulling_the_match_to_zero():
+    """Content fixed to the sensor matches itself at zero motion: with a broad blob about the sensor
+    in both sweeps the match of a 3-pixel move reads short; the features' high-pass removes the blob
+    and the move reads in full (GridProfile.feature_highpass_px)."""
+    base = tiny_profile(width_px=64, resolution_m=1.0, max_translation_m=8.0, pose_estimator="parabolic",
+                        rotation_range_rad=math.radians(1.0), rotation_step_rad=math.radians(0.5))
+    plain = np.hypot(*_shift_match(base, (3, 0), sensor_blob=3.0))
+    highpassed = np.hypot(*_shift_match(base.with_(feature_highpass_px=4.0), (3, 0), sensor_blob=3.0))
+    assert plain < 2.0  # pulled toward 0 by the blob
+    assert highpassed == pytest.approx(3.0, abs=0.3)
+    # without the blob both read the move
+    assert np.hypot(*_shift_match(base, (3, 0), sensor_blob=0.0)) == pytest.approx(3.0, abs=0.3)
+
+
+def test_band_limit_fields_are_written_only_when_used():
+    p = get_profile("cart-0.8")
+    assert p.feature_highpass_px == 0.0 and p.feature_blur_px == 0.0
+    text = p.to_metadata()["radar_odom.profile"]
+    assert "feature_highpass_px" not in text and "feature_blur_px" not in text  # same digest as before them
+    q = p.with_(feature_highpass_px=6.0, feature_blur_px=1.0)
+    assert GridProfile.from_metadata(q.to_metadata()) == q
+    assert GridProfile.from_metadata(p.to_metadata()) == p
+    with pytest.raises(ValueError, match="feature_highpass_px"):
+        p.with_(feature_highpass_px=1.0, feature_blur_px=2.0)  # a high-pass below the blur keeps nothing
+    with pytest.raises(ValueError, match="feature_blur_px"):
+        p.with_(feature_blur_px=-1.0)

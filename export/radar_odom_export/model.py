@@ -108,6 +108,25 @@ class PolarToCartesian(nn.Module):
                                          padding_mode="zeros", align_corners=True).squeeze(1)
 
 
+def gaussian_kernel_1d(sigma_px: float) -> torch.Tensor:
+    """float32[2r + 1] normalised Gaussian taps of ``sigma_px`` (r = ⌈3σ⌉); [1.0] for σ = 0."""
+    if sigma_px <= 0:
+        return torch.ones(1)
+    r = int(math.ceil(3 * sigma_px))
+    x = torch.arange(-r, r + 1, dtype=torch.float64)
+    k = torch.exp(-0.5 * (x / sigma_px) ** 2)
+    return (k / k.sum()).to(torch.float32)
+
+
+def blur_images(images: torch.Tensor, taps: torch.Tensor) -> torch.Tensor:
+    """images float[B, H, W] convolved with the separable kernel ``taps`` ⊗ ``taps`` (zero outside)."""
+    r = taps.numel() // 2
+    x = images.unsqueeze(1)
+    x = nn.functional.conv2d(x, taps.view(1, 1, 1, -1), padding=(0, r))
+    x = nn.functional.conv2d(x, taps.view(1, 1, -1, 1), padding=(r, 0))
+    return x.squeeze(1)
+
+
 def support_disc(width_px: int, translation_cells: int) -> torch.Tensor:
     """float[W, W]: 1 inside the disc of radius ``(W−1)/2 − n − 1`` px about the image centre.
 
@@ -162,6 +181,8 @@ class MaskedCorrelator(nn.Module):
         self.register_buffer("support", support_disc(profile.width_px, profile.translation_cells),
                              persistent=False)
         self.register_buffer("cov_floor", torch.diag(torch.tensor(profile.covariance_floor)), persistent=False)
+        self.register_buffer("blur", gaussian_kernel_1d(profile.feature_blur_px), persistent=False)
+        self.register_buffer("highpass", gaussian_kernel_1d(profile.feature_highpass_px), persistent=False)
 
     # ------------------------------------------------------------------ masks and features
     def normalise(self, x: torch.Tensor) -> torch.Tensor:
@@ -198,6 +219,12 @@ class MaskedCorrelator(nn.Module):
         a normalised sweep z."""
         masked = mask * z
         cart = masked if self.to_cartesian is None else self.to_cartesian(masked)
+        # the profile's band limits (GridProfile.feature_highpass_px / feature_blur_px): content fixed
+        # to the sensor or to the pixel grid out, before it can match itself at zero motion
+        if self.blur.numel() > 1:
+            cart = blur_images(cart * self.support, self.blur)
+        if self.highpass.numel() > 1:
+            cart = cart - blur_images(cart * self.support, self.highpass)
         return cart * self.support
 
     def _masks(self, prev, cur, prev_mask, cur_mask):
