@@ -36,8 +36,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from radar_odom.evaluation import metrics
 from radar_odom.errors import RadarOdomError
+from radar_odom.evaluation import metrics
 from radar_odom.profiles import GridProfile
 
 from .checkpoint import provenance_command
