@@ -298,3 +298,20 @@ def test_band_limit_fields_are_written_only_when_used():
         p.with_(feature_highpass_px=1.0, feature_blur_px=2.0)  # a high-pass below the blur keeps nothing
     with pytest.raises(ValueError, match="feature_blur_px"):
         p.with_(feature_blur_px=-1.0)
+
+
+def test_a_wide_lowpass_runs_pooled_and_matches_the_gaussian_it_stands_for():
+    from radar_odom_export.model import blur_images, coarse_blur_factor, gaussian_kernel_1d, lowpass_images
+
+    assert coarse_blur_factor(12.0, 256) == 4 and coarse_blur_factor(4.0, 256) == 1
+    assert coarse_blur_factor(12.0, 66) == 1  # the pooling must divide the image
+    gen = torch.Generator().manual_seed(0)
+    img = torch.zeros(1, 128, 128)
+    img[0, 20:108, 20:108] = torch.rand(88, 88, generator=gen)
+    exact = blur_images(img, gaussian_kernel_1d(12.0))
+    pooled = lowpass_images(img, 12.0)
+    inner = (slice(None), slice(30, 98), slice(30, 98))
+    assert float((pooled - exact)[inner].abs().max()) < 0.05 * float(exact[inner].max())
+    # what the high-pass keeps (the image minus its low-pass) is the fine structure either way
+    kept_exact, kept_pooled = img - exact, img - pooled
+    assert float(torch.corrcoef(torch.stack([kept_exact[inner].flatten(), kept_pooled[inner].flatten()]))[0, 1]) > 0.99

@@ -127,6 +127,33 @@ def blur_images(images: torch.Tensor, taps: torch.Tensor) -> torch.Tensor:
     return x.squeeze(1)
 
 
+# A blur this wide (σ, px) or wider is computed on the image average-pooled by COARSE_BLUR_FACTOR and
+# upsampled bilinearly: a 12 px Gaussian at full resolution is two 73-tap passes, +17 % of cart-0.4's
+# step time in onnxruntime; pooled 4x it is two 19-tap passes on a 16th of the pixels. The result is
+# a low-pass of the same width (its response differs from the Gaussian's by the pooling's box and
+# the upsampling's tent), which is all the high-pass needs.
+COARSE_BLUR_MIN_SIGMA_PX = 8.0
+COARSE_BLUR_FACTOR = 4
+
+
+def coarse_blur_factor(sigma_px: float, width_px: int) -> int:
+    """The pooling factor `lowpass_images` uses for a blur of ``sigma_px`` on a ``width_px`` image."""
+    f = COARSE_BLUR_FACTOR
+    return f if sigma_px >= COARSE_BLUR_MIN_SIGMA_PX and width_px % f == 0 else 1
+
+
+def lowpass_images(images: torch.Tensor, sigma_px: float) -> torch.Tensor:
+    """images float[B, W, W] low-passed to about ``sigma_px``: the Gaussian blur, or for a wide one
+    (`coarse_blur_factor`) the Gaussian of ``sigma_px / f`` on the f-pooled image, upsampled back."""
+    f = coarse_blur_factor(sigma_px, images.shape[-1])
+    if f == 1:
+        return blur_images(images, gaussian_kernel_1d(sigma_px).to(images.dtype))
+    small = nn.functional.avg_pool2d(images.unsqueeze(1), f).squeeze(1)
+    small = blur_images(small, gaussian_kernel_1d(sigma_px / f).to(images.dtype))
+    return nn.functional.interpolate(small.unsqueeze(1), scale_factor=float(f), mode="bilinear",
+                                     align_corners=False).squeeze(1)
+
+
 def support_disc(width_px: int, translation_cells: int) -> torch.Tensor:
     """float[W, W]: 1 inside the disc of radius ``(W−1)/2 − n − 1`` px about the image centre.
 
@@ -182,7 +209,6 @@ class MaskedCorrelator(nn.Module):
                              persistent=False)
         self.register_buffer("cov_floor", torch.diag(torch.tensor(profile.covariance_floor)), persistent=False)
         self.register_buffer("blur", gaussian_kernel_1d(profile.feature_blur_px), persistent=False)
-        self.register_buffer("highpass", gaussian_kernel_1d(profile.feature_highpass_px), persistent=False)
 
     # ------------------------------------------------------------------ masks and features
     def normalise(self, x: torch.Tensor) -> torch.Tensor:
@@ -223,8 +249,8 @@ class MaskedCorrelator(nn.Module):
         # to the sensor or to the pixel grid out, before it can match itself at zero motion
         if self.blur.numel() > 1:
             cart = blur_images(cart * self.support, self.blur)
-        if self.highpass.numel() > 1:
-            cart = cart - blur_images(cart * self.support, self.highpass)
+        if self.profile.feature_highpass_px > 0:
+            cart = cart - lowpass_images(cart * self.support, self.profile.feature_highpass_px)
         return cart * self.support
 
     def _masks(self, prev, cur, prev_mask, cur_mask):

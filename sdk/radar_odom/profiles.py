@@ -96,9 +96,10 @@ class GridProfile:
     # as in every file made before these fields). A sweep drawn on a pixel grid carries content that
     # is fixed to the sensor rather than to the world, and such content matches itself best at zero
     # motion, pulling every match toward standing still (docs/yaw-precision.md, "Band limits"):
-    # - feature_highpass_px: the features minus their blur of this sigma. Removes the broad
+    # - feature_highpass_px: the features minus their low-pass of this sigma (8 px and wider: computed on
+    #   the image pooled 4x, +2-10 % step time instead of +17 %). Removes the broad
     #   sensor-centred content (the near-range clutter disc, the range trend the ring normalisation
-    #   leaves): shared RADIATE drive 3.63 → 3.36 %, simulated drives 10.25 → 8.53 % at 12 px (cart-0.4).
+    #   leaves): cart-0.4 at 12 px, shared RADIATE drive 3.63 → 3.38 %, simulated drives 10.25 → 8.53 %.
     # - feature_blur_px: a blur of this sigma. Removes the fine texture of the grid (range bins ~10x
     #   finer than a pixel sampled by a bilinear remap, the masker's pooling phase), which pulls small
     #   turns to 0: a 0.5 deg/sweep simulated bend is read as 0.64 of the turn, 0.88 at 2 px, and the
