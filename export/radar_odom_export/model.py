@@ -208,7 +208,6 @@ class MaskedCorrelator(nn.Module):
         self.register_buffer("support", support_disc(profile.width_px, profile.translation_cells),
                              persistent=False)
         self.register_buffer("cov_floor", torch.diag(torch.tensor(profile.covariance_floor)), persistent=False)
-        self.register_buffer("blur", gaussian_kernel_1d(profile.feature_blur_px), persistent=False)
 
     # ------------------------------------------------------------------ masks and features
     def normalise(self, x: torch.Tensor) -> torch.Tensor:
@@ -247,8 +246,8 @@ class MaskedCorrelator(nn.Module):
         cart = masked if self.to_cartesian is None else self.to_cartesian(masked)
         # the profile's band limits (GridProfile.feature_highpass_px / feature_blur_px): content fixed
         # to the sensor or to the pixel grid out, before it can match itself at zero motion
-        if self.blur.numel() > 1:
-            cart = blur_images(cart * self.support, self.blur)
+        if self.profile.feature_blur_px > 0:
+            cart = lowpass_images(cart * self.support, self.profile.feature_blur_px)
         if self.profile.feature_highpass_px > 0:
             cart = cart - lowpass_images(cart * self.support, self.profile.feature_highpass_px)
         return cart * self.support
