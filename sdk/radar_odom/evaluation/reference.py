@@ -80,8 +80,6 @@ def gnss_reference(track, timestamps_us, est_poses, time_offset_s=None, heading_
     return poses, info, note
 
 
-
-
 def check_overlap(track, timestamps_us, poses, offset_s: float, found: str) -> None:
     """`SequenceError` where the clock offset leaves fewer than two radar times on the track: an offset
     of 1e12 s gave an all-NaN reference that passed as "9 of 9 steps lack ground truth" and an empty

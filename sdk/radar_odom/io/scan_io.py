@@ -27,13 +27,10 @@ def sweep_path(path) -> Path:
 
     Raises TypeError naming the type for anything else (None, a number, an open file, ...).
     """
-    if isinstance(path, bytes):
-        path = os.fsdecode(path)
-    if not isinstance(path, (str, os.PathLike)):
+    if not isinstance(path, (str, bytes, os.PathLike)):
         raise TypeError(f"a sweep path must be a file path (str, bytes or os.PathLike), got {type(path).__name__} "
                         f"{path!r:.60}")
-    path = os.fspath(path)
-    return Path(os.fsdecode(path) if isinstance(path, bytes) else path)
+    return Path(os.fsdecode(path))
 
 
 def detect_format(path) -> str:
@@ -87,18 +84,21 @@ def load_scan(
 
     Warns:
         FormatWarning: an explicit ``format`` (without ``range_resolution_m``) that the folder
-            layout or the sweep itself contradicts (`_check_format_against_layout`,
-            `_check_format_against_content`); the sweep is read as asked.
+            layout (`layout_evidence`) or, where the folder says nothing, an Oxford or Boreas sweep's
+            own name and width (`content_evidence`) contradict; the sweep is read as asked. The
+            message names the folder, not the file: a recording read with the wrong format gives one
+            line under Python's default warning filter, not one per sweep.
     """
     path = sweep_path(path)
     fmt = detect_format(path) if format is None else format
     check = format is not None and format in FORMATS and range_resolution_m is None
-    if check:
-        _check_format_against_layout(path, format)
+    layout = layout_evidence(path) if check else None  # once per sweep: it looks at the file system
+    if layout is not None:
+        warn_format_contradiction(path.parent, format, [layout])
     scan = _load(path, fmt, range_resolution_m=range_resolution_m, range_offset_m=range_offset_m,
                  num_azimuths=num_azimuths, num_bins=num_bins, sweep_period_s=sweep_period_s)
-    if check:
-        _check_format_against_content(path, format, scan)
+    if check and layout is None and format in ("oxford", "boreas"):
+        warn_format_contradiction(path.parent, format, content_evidence(path, scan))
     return scan
 
 
@@ -185,7 +185,10 @@ def content_evidence(path, scan: RadarScan) -> list[tuple[str, str]]:
     return found
 
 
-def _warn_contradiction(where, format: str, reasons: list[tuple[str, str]]) -> None:
+def warn_format_contradiction(where, format: str, reasons: list[tuple[str, str]], stacklevel: int = 3) -> None:
+    """A `FormatWarning` at ``where`` (a folder) for the ``reasons`` (format, why) that name another
+    format than the ``format`` asked for; nothing where none does. ``stacklevel`` 3: the caller of
+    the caller (`load_scan`'s)."""
     others = [(f, why) for f, why in reasons if f != format]
     if not others:
         return
@@ -193,24 +196,4 @@ def _warn_contradiction(where, format: str, reasons: list[tuple[str, str]]) -> N
     warnings.warn(
         f"{where}: sweeps read as {format!r} as asked, but {said}; the range resolution and offset are {format}'s "
         "defaults — leave format=None to detect it, or pass range_resolution_m= if it is this radar's",
-        FormatWarning, stacklevel=4)
-
-
-def _check_format_against_layout(path, format: str) -> None:
-    """A `FormatWarning` where ``format`` contradicts the layout the folder names for certain
-    (`layout_evidence`). Like `_check_format_against_content`, it names the folder."""
-    found = layout_evidence(path)
-    if found is not None:
-        _warn_contradiction(Path(path).parent, format, [found])
-
-
-def _check_format_against_content(path, format: str, scan: RadarScan) -> None:
-    """A `FormatWarning` where an Oxford or Boreas sweep read as the other contradicts ``format`` by
-    its name or width (`content_evidence`); only where the folder did not already say so.
-
-    The message names the folder, not the file: a recording read with the wrong format gives one
-    line under Python's default warning filter, not one per sweep.
-    """
-    if format not in ("oxford", "boreas") or layout_evidence(path) is not None:
-        return
-    _warn_contradiction(Path(path).parent, format, content_evidence(path, scan))
+        FormatWarning, stacklevel=stacklevel)

@@ -30,13 +30,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ConfigError, FormatWarning, GroundTruthWarning, SequenceError
+from ..errors import ConfigError, GroundTruthWarning, SequenceError
 from ..scan import RadarScan
 from ..se2 import chain_relative
 from . import boreas, gnss_ins, mulran, oxford, radiate
 from ._layout import name_timestamp, to_microseconds
 from ._zup import nearest_poses, oxford_relative_from_zup
-from .scan_io import FORMATS, layout_evidence, load_scan
+from .scan_io import FORMATS, layout_evidence, load_scan, warn_format_contradiction
 
 # MulRan keeps sweeps under sensor_data/radar/ in the release, at the top level in some copies;
 # Oxford-form copies come first because they carry real per-azimuth times and encoder angles.
@@ -313,10 +313,8 @@ def read_sequence(
     paths, stamps = _sweep_files(folder)
     if format is not None and load_kwargs.get("range_resolution_m") is None:
         found = layout_evidence(paths[0])
-        if found is not None and found[0] != fmt:  # said once here; load_scan says it again per folder
-            warnings.warn(f"{root}: read as {fmt!r} as asked, but {found[1]}; the range resolution and offset are "
-                          f"{fmt}'s defaults — leave format=None to detect it, or pass range_resolution_m= if it is "
-                          "this radar's", FormatWarning, stacklevel=2)
+        if found is not None:  # said once here; load_scan says it again per folder
+            warn_format_contradiction(root, fmt, [found], stacklevel=3)
     gap_us = int(round(max_pose_gap_s * 1e6))
     if fmt == "oxford":
         rel = _oxford_gt(root, stamps)
