@@ -1,8 +1,8 @@
 """`radar-odom run` on the shared real city drive, against its aligned GNSS/INS reference.
 
 The drive is ``../shared/data/real/radiate-2019-02-12-edinburgh`` (RADIATE, frames 201–480,
-280 sweeps, ≈ 445 m, three pairs ≈ 0.5 s apart; see the data's README): read in place, never
-copied into the repository. The whole drive is run ONCE per module (through the CLI, with the
+280 sweeps, ≈ 445 m, three intervals of ≈ 0.5 s that are late stamps, not missing sweeps: `io.stamps`):
+read in place, never copied into the repository. The whole drive is run ONCE per module (through the CLI, with the
 shipped default model; ≈ 15–30 s on two cores); the other real tests build small tmp copies of a
 stretch of it (a hole cut into it, the sweeps mirrored) and run those.
 
@@ -32,7 +32,8 @@ from radar_odom.se2 import chain_relative, relative_from_absolute
 
 DRIVE_NAME = "radiate-2019-02-12-edinburgh"
 SWEEPS = 280
-# the recording's own gaps (two sweeps in one interval): estimate index, "sweep N" as printed, interval
+# the recording's ≈ 0.5 s intervals, which the runtime crosses as gaps (late stamps: one period of motion, every
+# matcher measures; the reference puts them back, `io.stamps`): estimate index, "sweep N" as printed, interval
 DRIVE_GAPS = ((134, "sweep 135 (0.52 s)"), (202, "sweep 203 (0.49 s)"), (244, "sweep 245 (0.46 s)"))
 # the offsets measured on the drive (its README; `gnss_ins` docstring): +1.644 s and −7.50° by the run itself
 CLOCK_OFFSET_S = 1.7
@@ -274,6 +275,7 @@ def test_real_reference_takes_given_offsets_as_given(drive):
     from radar_odom.evaluation.reference import gnss_reference
     from radar_odom.io import read_sequence
     from radar_odom.io.gnss_ins import estimate_heading_offset_rad, poses_at
+    from radar_odom.io.stamps import repair_late_stamps
 
     seq = read_sequence(drive)
     track, ts = seq.reference, seq.timestamps_us
@@ -293,8 +295,19 @@ def test_real_reference_takes_given_offsets_as_given(drive):
     assert "clock offset +1.700 s (given;" in note and f"INS heading {measured:+.2f} deg" in note
     assert "(given; negative = clockwise)" in note
     np.testing.assert_allclose(poses, auto_heading, atol=1e-9)  # the same offsets, the same poses
-    # the offsets are used as given: the track where they put it ...
-    np.testing.assert_allclose(poses, poses_at(track, ts, CLOCK_OFFSET_S, math.radians(measured), 1.0), atol=1e-9)
+    # the offsets are used as given: the track where they put it, at the sweep times with the drive's three
+    # late-stamp runs put back on the sensor's period (`io.stamps`) ...
+    assert info["late_stamps"] == 44 and "44 sweep stamps were late (up to 263 ms, in 3 runs" in note
+    repaired = repair_late_stamps(ts).timestamps_us
+    np.testing.assert_allclose(poses, poses_at(track, repaired, CLOCK_OFFSET_S, math.radians(measured), 1.0),
+                               atol=1e-9)
+    raw, raw_info, raw_note = gnss_reference(track, ts, unused, CLOCK_OFFSET_S, measured, repair_stamps=False)
+    np.testing.assert_allclose(raw, poses_at(track, ts, CLOCK_OFFSET_S, math.radians(measured), 1.0), atol=1e-9)
+    assert "late_stamps" not in raw_info and "were late" not in raw_note
+    # where a run of late stamps was, the raw stamps' reference steps are 8 % short (sweeps 203–213)
+    short = np.linalg.norm(relative_from_absolute(raw)[203:213, :2], axis=1)
+    right = np.linalg.norm(relative_from_absolute(poses)[203:213, :2], axis=1)
+    assert 0.88 < short.sum() / right.sum() < 0.96
     later, _, _ = gnss_reference(track, ts, unused, CLOCK_OFFSET_S + 1.0, measured)
     assert np.nanmax(np.abs(later[:, :2, 2] - poses[:, :2, 2])) > 5.0  # a second later the car is elsewhere
     # ... and another heading offset turns the whole path about the start: the same yaws, the positions

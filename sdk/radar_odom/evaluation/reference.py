@@ -13,9 +13,15 @@ MIN_CLOCK_SECOND_BEST_RATIO = 1.5
 MIN_CLOCK_PAIRS = 40
 
 
-def gnss_reference(track, timestamps_us, est_poses, time_offset_s=None, heading_offset_deg=None):
+def gnss_reference(track, timestamps_us, est_poses, time_offset_s=None, heading_offset_deg=None,
+                   repair_stamps: bool = True):
     """(reference poses float64[N, 3, 3] at ``timestamps_us``, info dict, one-line note) from a
     GNSS/INS track, its clock and heading offsets given or found from the data.
+
+    The stamps (``repair_stamps``): late sweep stamps are put back on the sensor's period first
+    (`radar_odom.io.stamps.repair_late_stamps`; RADIATE's host stamps run up to 0.27 s late for a
+    dozen sweeps at a time, which made the reference's steps 8 % short there and one step double);
+    ``info["late_stamps"]`` counts them.
 
     The clock (None): by aligning ``est_poses``' yaw increments and step lengths with the track's
     (`gnss_ins.estimate_clock_offset_s`); refused with a `SequenceError` (the reference is then not
@@ -28,9 +34,14 @@ def gnss_reference(track, timestamps_us, est_poses, time_offset_s=None, heading_
     import math
 
     from ..io import gnss_ins
+    from ..io.stamps import repair_late_stamps
     from ..se2 import relative_from_absolute
 
     info = {}
+    repair = repair_late_stamps(timestamps_us) if repair_stamps and len(timestamps_us) else None
+    if repair is not None:
+        timestamps_us = repair.timestamps_us
+        info.update(late_stamps=int(repair.late.size), late_stamps_max_s=float(repair.corrections_us.max()) / 1e6)
     if heading_offset_deg is None:
         offsets = gnss_ins.heading_offset_track_rad(track)
         deg = np.degrees(offsets)
@@ -77,6 +88,8 @@ def gnss_reference(track, timestamps_us, est_poses, time_offset_s=None, heading_
                 "negative = clockwise), turned onto it")
     note = (f"reference: GNSS/INS, clock offset {info['clock_offset_s']:+.3f} s ({clock_how}; the reference for "
             f"radar time t is the sample at t + offset), {head}")
+    if repair is not None and repair.late.size:
+        note += f"; {repair.summary()} before sampling the track"
     return poses, info, note
 
 
