@@ -1,12 +1,15 @@
-"""Band limits of the masked features (`GridProfile.feature_highpass_px`, `feature_blur_px`): the
-shipped masker, unchanged, exported with each setting and measured where the yaw issue measures.
+"""Band limits of the masked features (`GridProfile.feature_highpass_px`, `feature_blur_px`,
+`feature_radial_blur_px`): the shipped masker, unchanged, exported with each setting and measured where
+the yaw issue measures.
 
     python benchmarks/band_limits.py                                   # cart-0.4, the settings below; ≈ 25 min
     python benchmarks/band_limits.py --variants hp12 b1+hp12 --parts real
+    python benchmarks/band_limits.py --variants hp12 r1+hp12 --parts curves
     python benchmarks/band_limits.py --checkpoint cart-0.8 --variants hp0 hp6 hp12 --parts real
 
-A variant is ``hpH`` (high-pass σ = H px), ``bB`` (blur σ = B px) or ``bB+hpH``; ``hp0`` is the
-checkpoint's profile with both off, whatever the shipped profile sets; ``+mD`` adds a mount yaw of D°
+A variant is ``+``-joined parts: ``hpH`` (high-pass σ = H px), ``bB`` (blur σ = B px), ``rR`` (radial-only
+blur σ = R px), e.g. ``b1+hp12``, ``r1+hp12``; a field a variant does not name is off (``hp0`` is the
+checkpoint's profile with all three off, whatever the shipped profile sets); ``+mD`` adds a mount yaw of D°
 (`radar_odom.mount_yaw_rad`, as `radar-odom adapt` writes it). Each is the checkpoint with those profile
 fields, exported with the fast search into a temporary folder (the covariance calibration is the
 checkpoint's: pose figures only are comparable across rows; the motion prior's fusion uses the
@@ -31,22 +34,21 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 DEFAULT_VARIANTS = ("hp0", "hp12", "b0.7+hp12", "b1+hp12", "b1.5", "b2")
 PARTS = ("curves", "real", "sim")
+VARIANT_FIELDS = {"hp": "feature_highpass_px", "b": "feature_blur_px", "r": "feature_radial_blur_px"}
 
 
 def parse_variant(name: str) -> tuple[dict, float]:
     """({profile field: value}, mount yaw °) of a variant name (module docstring)."""
-    fields, mount = {"feature_highpass_px": 0.0, "feature_blur_px": 0.0}, 0.0
+    fields, mount = {"feature_highpass_px": 0.0, "feature_blur_px": 0.0, "feature_radial_blur_px": 0.0}, 0.0
     for part in name.split("+"):
-        m = re.fullmatch(r"(hp|b|m)(-?[0-9.]+)", part)
+        m = re.fullmatch(r"(hp|b|r|m)(-?[0-9.]+)", part)
         if m is None:
-            raise SystemExit(f"variant {name!r}: parts are hpH, bB and mD (got {part!r})")
+            raise SystemExit(f"variant {name!r}: parts are hpH, bB, rR and mD (got {part!r})")
         value = float(m.group(2))
-        if m.group(1) == "hp":
-            fields["feature_highpass_px"] = value
-        elif m.group(1) == "b":
-            fields["feature_blur_px"] = value
-        else:
+        if m.group(1) == "m":
             mount = value
+        else:
+            fields[VARIANT_FIELDS[m.group(1)]] = value
     return fields, mount
 
 
@@ -76,7 +78,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--checkpoint", default="cart-0.4", help="shipped name or checkpoint (default: %(default)s)")
     ap.add_argument("--variants", nargs="+", default=list(DEFAULT_VARIANTS),
-                    help="hpH, bB, bB+hpH, … (+mD: a mount yaw of D°) (default: %(default)s)")
+                    help="hpH, bB, rR joined by +, e.g. r1+hp12 (+mD: a mount yaw of D°) (default: %(default)s)")
     ap.add_argument("--parts", default=",".join(PARTS), help=f"comma-separated, of {PARTS} (default: all)")
     args = ap.parse_args(argv)
     parts = [p for p in args.parts.split(",") if p]

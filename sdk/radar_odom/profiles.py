@@ -34,7 +34,7 @@ ROTATION_KERNELS = ("bilinear", "cubic")
 
 
 # fields a profile writes only when they differ from this value (what files without them mean)
-OPTIONAL_FIELDS = {"feature_highpass_px": 0.0, "feature_blur_px": 0.0}
+OPTIONAL_FIELDS = {"feature_highpass_px": 0.0, "feature_blur_px": 0.0, "feature_radial_blur_px": 0.0}
 
 
 @dataclass(frozen=True)
@@ -106,8 +106,14 @@ class GridProfile:
     #   real drive's rotation drift falls 35 % at 1 px — but straight simulated roads gain a yaw bias and
     #   the real drive's translation error rises unless the radar's mount yaw is corrected (`radar-odom
     #   adapt`): measured, not on in the shipped models.
+    # - feature_radial_blur_px: a Gaussian of this sigma along the radial direction only (away from the
+    #   sensor, the image centre; anisotropic diffusion, `radial_blur_images`), applied first. Smooths
+    #   the range-sharp texture of the grid but keeps the tangential detail that yaw is read from: a
+    #   0.5 deg/sweep simulated bend reads 0.76/0.82 of the turn (urban/open) at 1 px + hp12, 0.63/0.77
+    #   with hp12 alone (benchmarks/band_limits.py --parts curves). Measured, not on in the shipped models.
     feature_highpass_px: float = 0.0
     feature_blur_px: float = 0.0
+    feature_radial_blur_px: float = 0.0
     # Input normalisation (module docstring): "none" | "floor-scale". The floor is this quantile
     # over azimuth of each range ring, the scale this quantile of the floor-free image over the
     # support disc; the normalised image is clipped at norm_clip (0: no clip).
@@ -146,6 +152,9 @@ class GridProfile:
         if not 0.0 <= self.feature_blur_px <= self.translation_cells / 2:
             raise ValueError(f"profile {self.name!r}: feature_blur_px must lie in [0, {self.translation_cells / 2:g}] "
                              "(half the translation window)")
+        if not 0.0 <= self.feature_radial_blur_px <= self.translation_cells / 2:
+            raise ValueError(f"profile {self.name!r}: feature_radial_blur_px must lie in "
+                             f"[0, {self.translation_cells / 2:g}] (half the translation window)")
         highpass = self.feature_highpass_px
         if not (highpass == 0.0 or self.feature_blur_px < highpass <= self.width_px / 4):
             raise ValueError(f"profile {self.name!r}: feature_highpass_px must be 0 or lie in (feature_blur_px, "
