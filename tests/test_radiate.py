@@ -459,3 +459,31 @@ def test_real_time_file_with_unpadded_nanoseconds(edinburgh_dir):
     assert times[203] == 1549986598004512  # 1549986598 s + 4 512 151 ns
     seq = read_sequence(edinburgh_dir)
     assert len(seq) == 280 and seq.timestamps_us[2] == 1549986598004512
+
+
+def test_late_stamps_are_put_back_on_the_sensor_period_with_a_warning(tmp_path):
+    """RADIATE stamps sweeps on the recording host: a run of late stamps (one ≈ 0.5 s interval, then
+    short ones until back on the 0.25 s rhythm; the shared city drive has three) is put back, and the
+    sweeps' azimuth times with it; ``repair_stamps=False`` keeps them as recorded."""
+    from radar_odom.errors import StampWarning
+
+    n, period = 40, 250_000
+    true = 1574859771_000_000 + np.arange(n) * period
+    late = true + np.array([max(0, 240_000 - 20_000 * (k - 10)) if k >= 10 else 0 for k in range(n)])
+    frames = tuple(range(1, n + 1))
+    times = [f"{t // 1_000_000}.{t % 1_000_000:06d}" for t in late]
+    write_radiate(tmp_path, frames=frames, times=times, images=[sweep_image(0)] * n)
+    with pytest.warns(StampWarning, match=r"12 sweep stamps were late \(up to 240 ms, in 1 run.*repair_stamps=False"):
+        seq = read_sequence(tmp_path)
+    np.testing.assert_array_equal(seq.timestamps_us, true)
+    np.testing.assert_array_equal(seq.stamp_corrections_us, late - true)
+    scan = seq[10].scan  # the first late sweep: every azimuth time moved with its stamp
+    assert scan.timestamp_us == true[10]
+    np.testing.assert_array_equal(scan.timestamps_us, load_radiate(seq.paths[10]).timestamps_us - 240_000)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        raw = read_sequence(tmp_path, repair_stamps=False)
+    np.testing.assert_array_equal(raw.timestamps_us, late)
+    assert raw[10].scan.timestamp_us == late[10] and not raw.stamp_corrections_us.any()

@@ -32,9 +32,9 @@ from radar_odom.se2 import chain_relative, relative_from_absolute
 
 DRIVE_NAME = "radiate-2019-02-12-edinburgh"
 SWEEPS = 280
-# the recording's ≈ 0.5 s intervals, which the runtime crosses as gaps (late stamps: one period of motion, every
-# matcher measures; the reference puts them back, `io.stamps`): estimate index, "sweep N" as printed, interval
-DRIVE_GAPS = ((134, "sweep 135 (0.52 s)"), (202, "sweep 203 (0.49 s)"), (244, "sweep 245 (0.46 s)"))
+# the recording's three ≈ 0.5 s intervals (sweeps 135, 203, 245) are late stamps, put back by the reader
+# (`io.stamps`, a StampWarning): no gap is left to cross
+LATE_STAMPS = 44
 # the offsets measured on the drive (its README; `gnss_ins` docstring): +1.644 s and −7.50° by the run itself
 CLOCK_OFFSET_S = 1.7
 HEADING_OFFSET_DEG = -7.1
@@ -135,17 +135,17 @@ def test_default_model_covariance_is_honest_on_the_held_out_stretch(drive_run):
 
 @pytest.mark.real
 @pytest.mark.slow
-def test_real_drive_runs_to_the_end_across_its_gaps_against_the_aligned_reference(drive_run):
+def test_real_drive_runs_to_the_end_with_its_late_stamps_put_back_against_the_aligned_reference(drive_run):
     run, r = drive_run, drive_run.result
     assert run.status == 0, run.stderr
     # to the end: every sweep read (time file with unpadded nanoseconds), none skipped or degenerate
     assert len(r.poses) == len(r.timestamps_us) == SWEEPS and len(r.estimates) == SWEEPS - 1
     assert r.complete and r.num_degenerate == 0 and np.all(np.diff(r.timestamps_us) > 0)
-    # every gap crossed, and only the gaps flagged
+    # the late stamps put back on the sensor's period, said on stderr: no interval is a gap any more
+    assert f"{LATE_STAMPS} sweep stamps were late (up to 263 ms, in 3 runs" in run.stderr, run.stderr
     dts = np.diff(r.timestamps_us) / 1e6
     gaps = [i for i, e in enumerate(r.estimates) if GAP in e.flags]
-    assert gaps == [i for i, _ in DRIVE_GAPS] and np.all(dts[gaps] > 0.45)
-    assert np.delete(dts, gaps).max() < 0.3
+    assert gaps == [] and 0.22 < dts.min() and dts.max() < 0.28
     assert not any(e.degenerate for e in r.estimates)
     # the reference aligned by the run itself (measured: +1.641 s; the INS heading's offset followed in
     # time, median −7.21°, from −8.51° to −4.59° over this stretch)
@@ -187,9 +187,7 @@ def test_real_drive_runs_to_the_end_across_its_gaps_against_the_aligned_referenc
     assert kitti, printed
     assert float(kitti[1]) == pytest.approx(m["translation_percent"], abs=1e-3)
     assert float(kitti[2]) == pytest.approx(m["rotation_deg_per_m"], abs=1e-5)
-    crossed = [ln for ln in printed.splitlines() if ln.startswith("crossed ")]
-    assert len(crossed) == 1 and crossed[0].startswith("crossed 3 gap(s)"), crossed
-    assert crossed[0].endswith(", ".join(text for _, text in DRIVE_GAPS)), crossed
+    assert not [ln for ln in printed.splitlines() if ln.startswith("crossed ")]
     for kind in ("gt_tum", "gt_kitti", "plot"):
         assert f"{kind}: {run.out}" in printed, kind
 
@@ -277,7 +275,7 @@ def test_real_reference_takes_given_offsets_as_given(drive):
     from radar_odom.io.gnss_ins import estimate_heading_offset_rad, poses_at
     from radar_odom.io.stamps import repair_late_stamps
 
-    seq = read_sequence(drive)
+    seq = read_sequence(drive, repair_stamps=False)  # as recorded: the reference puts the late stamps back itself
     track, ts = seq.reference, seq.timestamps_us
     unused = np.full((len(ts), 3, 3), np.nan)  # the estimate only serves to find the clock: not needed here
     followed, info_auto, _ = gnss_reference(track, ts, unused, CLOCK_OFFSET_S, None)

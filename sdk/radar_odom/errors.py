@@ -86,6 +86,11 @@ class GroundTruthWarning(UserWarning):
     truth (NaN), the rest is used as it is."""
 
 
+class StampWarning(UserWarning):
+    """Sweep stamps that a recording host stamped late and that were put back on the sensor's period
+    (`radar_odom.io.stamps`); the message says how many, by how much, and how to keep them as recorded."""
+
+
 class FormatWarning(UserWarning):
     """An explicit ``format=`` that the file contradicts (its folder or its header): the sweep is read
     as asked, with that dataset's range resolution, which may be wrong for it."""

@@ -25,18 +25,19 @@ import functools
 import inspect
 import math
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import ConfigError, GroundTruthWarning, SequenceError
+from ..errors import ConfigError, GroundTruthWarning, SequenceError, StampWarning
 from ..scan import RadarScan
 from ..se2 import chain_relative
 from . import boreas, gnss_ins, mulran, oxford, radiate
 from ._layout import name_timestamp, to_microseconds
 from ._zup import nearest_poses, oxford_relative_from_zup
 from .scan_io import FORMATS, layout_evidence, load_scan, warn_format_contradiction
+from .stamps import repair_late_stamps
 
 # MulRan keeps sweeps under sensor_data/radar/ in the release, at the top level in some copies;
 # Oxford-form copies come first because they carry real per-azimuth times and encoder angles.
@@ -71,16 +72,21 @@ class Sequence:
     """Sweeps of a recording in time order; each is decoded only when asked for.
 
     ``len(seq)``, ``seq[i]`` and iteration give `Frame` objects. ``timestamps_us`` int64[N]
-    (file-name times in µs; RADIATE: frame times), ``paths`` (the PNGs), ``gt_relative``
-    float64[N−1, 3] or None, ``format``, ``root``, ``reference`` (RADIATE's GNSS/INS track or
-    None, read on first use).
+    (file-name times in µs; RADIATE: frame times, late ones put back on the sensor's period unless
+    read with ``repair_stamps=False``), ``stamp_corrections_us`` int64[N] (how much earlier than
+    recorded each sweep's times are; zeros where nothing was late), ``paths`` (the PNGs),
+    ``gt_relative`` float64[N−1, 3] or None, ``format``, ``root``, ``reference`` (RADIATE's GNSS/INS
+    track or None, read on first use).
     """
 
-    def __init__(self, root: Path, format: str, paths, timestamps_us, gt_relative, load_kwargs: dict):
+    def __init__(self, root: Path, format: str, paths, timestamps_us, gt_relative, load_kwargs: dict,
+                 stamp_corrections_us=None):
         self.root = Path(root)
         self.format = format
         self.paths = tuple(paths)
         self.timestamps_us = np.asarray(timestamps_us, dtype=np.int64)
+        self.stamp_corrections_us = (np.zeros_like(self.timestamps_us) if stamp_corrections_us is None
+                                     else np.asarray(stamp_corrections_us, dtype=np.int64))
         self.gt_relative = gt_relative
         self._load_kwargs = dict(load_kwargs)
 
@@ -92,8 +98,10 @@ class Sequence:
         return f"Sequence({str(self.root)!r}, format={self.format!r}, {len(self)} sweeps, {gt})"
 
     def scan(self, index: int) -> RadarScan:
-        """Decode sweep ``index``."""
-        return load_scan(self.paths[index], self.format, **self._load_kwargs)
+        """Decode sweep ``index`` (its azimuth times moved by the sweep's stamp correction, if any)."""
+        scan = load_scan(self.paths[index], self.format, **self._load_kwargs)
+        late = int(self.stamp_corrections_us[index])
+        return replace(scan, timestamps_us=scan.timestamps_us - late) if late else scan
 
     def __getitem__(self, index: int) -> Frame:
         n = len(self)
@@ -265,7 +273,7 @@ def check_max_pose_gap_s(value) -> float:
 
 
 def read_sequence(
-    seq_dir, format: str | None = None, *, max_pose_gap_s: float = 0.1, **load_kwargs
+    seq_dir, format: str | None = None, *, max_pose_gap_s: float = 0.1, repair_stamps: bool = True, **load_kwargs
 ) -> Sequence:
     """Open a recording folder (nothing is decoded until a frame is asked for).
 
@@ -278,6 +286,10 @@ def read_sequence(
         max_pose_gap_s: Boreas/MulRan: a sweep whose nearest pose stamp is further away than
             this has no ground truth (0.1 s: 1 m at 10 m/s, and under half the 0.25 s sweep
             period, so a neighbouring sweep's pose is never taken).
+        repair_stamps: RADIATE: put sweep stamps that the recording host stamped late back on the
+            sensor's period (`radar_odom.io.stamps`; the shared city drive has three runs of them,
+            up to 0.26 s late, that look like dropped sweeps). The other formats' stamps are the
+            sensor's own and are used as recorded.
         **load_kwargs: passed to `load_scan` for every sweep (e.g. ``range_resolution_m``); checked
             here (`check_load_options`).
 
@@ -291,6 +303,7 @@ def read_sequence(
         GroundTruthWarning: a ground-truth file that is there but not used (a folder in its place,
             rows that match none of the sweeps), besides the rows it leaves out.
         FormatWarning: an explicit ``format`` that the folder layout contradicts (as `load_scan`).
+        StampWarning: RADIATE stamps that were late and were put back (``repair_stamps``).
     """
     check_load_options(load_kwargs)
     max_pose_gap_s = check_max_pose_gap_s(max_pose_gap_s)
@@ -309,7 +322,14 @@ def read_sequence(
         raise SequenceError(f"{root}: no {folder.name}/ folder of radar PNGs for format {fmt!r}")
     if fmt == "radiate":
         paths, stamps = radiate.radiate_sweeps(root)
-        return Sequence(root, fmt, paths, stamps, None, load_kwargs)
+        corrections = None
+        if repair_stamps:
+            repair = repair_late_stamps(stamps)
+            if repair.late.size:
+                stamps, corrections = repair.timestamps_us, repair.corrections_us
+                warnings.warn(f"{root}: {repair.summary()}; read with repair_stamps=False to keep them as recorded",
+                              StampWarning, stacklevel=2)
+        return Sequence(root, fmt, paths, stamps, None, load_kwargs, corrections)
     paths, stamps = _sweep_files(folder)
     if format is not None and load_kwargs.get("range_resolution_m") is None:
         found = layout_evidence(paths[0])

@@ -67,23 +67,6 @@ class StampRepair:
                 "on the sensor's period")
 
 
-def sweep_period_us(timestamps_us) -> float:
-    """The sensor's sweep period (µs): the median interval between consecutive stamps. A host's
-    stamp jitter cancels in it (the difference of two equally late stamps), a few dropped sweeps or
-    late stamps do not move it.
-
-    Raises:
-        SequenceError: fewer than two stamps, or stamps that do not increase.
-    """
-    t = np.asarray(timestamps_us, dtype=np.float64).reshape(-1)
-    if t.size < 2:
-        raise SequenceError(f"a sweep period needs at least two stamps (got {t.size})")
-    d = np.diff(t)
-    if not np.all(d > 0):
-        raise SequenceError("sweep stamps must increase strictly; sort the sweeps by time or drop the duplicates")
-    return float(np.median(d))
-
-
 def repair_late_stamps(timestamps_us, lookahead: int = LOOKAHEAD_SWEEPS) -> StampRepair:
     """Late sweep stamps put back on the sensor's period (module docstring).
 
@@ -98,11 +81,14 @@ def repair_late_stamps(timestamps_us, lookahead: int = LOOKAHEAD_SWEEPS) -> Stam
         SequenceError: stamps that do not increase.
     """
     t = np.asarray(timestamps_us, dtype=np.int64).reshape(-1)
+    intervals = np.diff(t)
+    if not np.all(intervals > 0):
+        raise SequenceError("sweep stamps must increase strictly; sort the sweeps by time or drop the duplicates")
     if t.size < MIN_SWEEPS:
-        if t.size >= 2 and not np.all(np.diff(t) > 0):
-            raise SequenceError("sweep stamps must increase strictly; sort the sweeps by time or drop the duplicates")
         return StampRepair(t.copy(), np.zeros_like(t), 0.0)
-    period = sweep_period_us(t)
+    # the median interval: a host's jitter cancels in it (two equally late stamps), a few dropped sweeps
+    # or late stamps do not move it
+    period = float(np.median(intervals))
     tf = t.astype(np.float64)
     bound = tf.copy()
     for k in range(1, int(max(0, lookahead)) + 1):
