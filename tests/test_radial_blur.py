@@ -9,6 +9,8 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+import test_model as model_tests  # noqa: E402  (its tiny grid)
+
 from radar_odom.profiles import OPTIONAL_FIELDS, GridProfile, get_profile  # noqa: E402
 from radar_odom_export import model as model_module  # noqa: E402
 from radar_odom_export.model import MaskedCorrelator, lowpass_images, radial_blur_images  # noqa: E402
@@ -99,11 +101,8 @@ def test_a_ring_is_blurred_along_the_radius_as_a_1d_gaussian():
 
 # ------------------------------------------------------------------ the profile field and the model
 def tiny_profile(**kw):
-    base = dict(resolution_m=1.0, width_px=64, max_translation_m=6.0,
-                rotation_range_rad=math.radians(4), rotation_step_rad=math.radians(2),
-                unet_base_channels=4, unet_depth=2)
-    base.update(kw)
-    return GridProfile("tiny", **base)
+    """test_model's tiny grid at W = 64 (room for a blur of 1–3 px inside the ±6 m window)."""
+    return model_tests.tiny_profile(**{"width_px": 64, "max_translation_m": 6.0, **kw})
 
 
 def test_the_field_is_optional_in_metadata_and_validated():
