@@ -71,6 +71,11 @@ Oxford and Boreas carry them, RADIATE's are spread uniformly over the period;
 `radar_odom.polar.moving_sample_maps`).
 Poses then refer to the first-azimuth instants of the two sweeps. Until the stream has a
 velocity (its first two sweeps) sweeps are drawn as recorded.
+
+Yaw centring (``centre_yaw=True``; Cartesian models; off by default): each sweep drawn turned by
+the predicted yaw, so the pull of the pixel grids goes toward the prediction rather than toward
+"no rotation" (`radar_odom.odometry.centring`; measured in docs/yaw-precision.md: simulated bends
+read more fully, the real drive worse, hence off).
 """
 from __future__ import annotations
 
@@ -85,6 +90,7 @@ from ..errors import ConfigError, ModelMismatchError, StreamError
 from ..onnx_model import OnnxModel
 from ..scan import RadarScan
 from ..se2 import invert, se2, to_xyyaw, turn_frame
+from .centring import MAX_TURN_RAD, next_turn, uncentre
 from .gaps import GAP, NEW_SEGMENT, NEW_SEGMENT_GAP_S, SweepPeriod, compose_residual
 from .motion_prior import GATED, PRIOR_DOMINATED, ExternalOdometry, MotionPrior, MotionPriorConfig
 from .motion_prior import compose as compose_relative
@@ -103,6 +109,7 @@ DEGENERATE = "degenerate"
 BRIDGED = "bridged"
 # De-skew is on by default only where it measured better on real drives (README, real-drive table)
 DESKEW_DEFAULT = False
+CENTRE_YAW_DEFAULT = False  # `radar_odom.odometry.centring`; None in the constructor reads this
 DESKEW_STEPS = 4  # estimates averaged into the de-skew velocity (1 s at 4 Hz)
 
 
@@ -256,7 +263,7 @@ class RadarOdometer:
     def __init__(self, model, threads: int | None = None, providers=None, max_gap_s: float | None = None,
                  on_gap: str = "raise", min_valid_fraction: float = 0.5,
                  motion_prior: bool | MotionPriorConfig = True, min_coverage: float = MIN_COVERAGE,
-                 deskew: bool = DESKEW_DEFAULT):
+                 deskew: bool = DESKEW_DEFAULT, centre_yaw: bool | None = None):
         if on_gap not in ("raise", "reset"):
             raise ConfigError(f"on_gap must be 'raise' or 'reset', got {on_gap!r}")
         self.max_gap_s = None if max_gap_s is None else _number(max_gap_s, "max_gap_s", low=0.0, open_low=True)
@@ -287,6 +294,11 @@ class RadarOdometer:
         # a polar model's graph reads the sweep as recorded: neither de-skew nor a moved frame
         self._movable = self.profile.input_kind != "polar"
         self.deskew = bool(deskew) and self._movable
+        if centre_yaw is None:
+            centre_yaw = CENTRE_YAW_DEFAULT
+        if not isinstance(centre_yaw, (bool, np.bool_)):
+            raise ConfigError(f"centre_yaw must be True, False or None, got {centre_yaw!r}")
+        self.centre_yaw = bool(centre_yaw) and self._movable
         self._period = SweepPeriod()
         self.reset()
 
@@ -309,6 +321,7 @@ class RadarOdometer:
         self._stamps: list[int] = []
         self._ref_feed: np.ndarray | None = None  # state (stream form) or sweep input (pair form)
         self._ref_index = -1  # trajectory index of the sweep ``_ref_feed`` belongs to
+        self._ref_turn = 0.0  # turn (rad) the reference was drawn with (`radar_odom.odometry.centring`)
         self._recent_motion: deque = deque(maxlen=DESKEW_STEPS)  # (relative pose, interval s)
         self._forget_motion()
         self._range_scale: tuple | None = None  # (range resolution m, offset m) of the stream's sweeps
@@ -429,6 +442,7 @@ class RadarOdometer:
             # recorded at identity but never becomes the reference.
             if problem is None:
                 self._ref_feed = self._run_first(self._input(scan, prepared, self._deskew_twist(scan)))
+                self._ref_turn = 0.0
                 self._set_reference(0)
             self._append(np.eye(3), ts)
             return None
@@ -446,13 +460,14 @@ class RadarOdometer:
             # so this one gets the prior and becomes the reference
             est = self._degenerate("no_reference", ts, dt_s, odo_rel, flags)
             self._ref_feed = self._run_first(x)
+            self._ref_turn = 0.0
             self._set_reference(len(self._poses) - 1)
             return est
         out = self._match(scan, x, ts, twist)
         if out is None:
             return self._degenerate("nonfinite", ts, dt_s, odo_rel, flags)
-        pose_ref, cov, new_ref = out
-        return self._accept(pose_ref, cov, new_ref, ts, dt_s, odo_rel, flags)
+        pose_ref, cov, new_ref, new_turn = out
+        return self._accept(pose_ref, cov, new_ref, ts, dt_s, odo_rel, flags, ref_turn=new_turn)
 
     # --- pieces ---------------------------------------------------------------------------
     def _check_range_scale(self, scan: RadarScan, first: bool) -> None:
@@ -474,6 +489,7 @@ class RadarOdometer:
         and the stream starts afresh from it (velocity, period and de-skew history forgotten)."""
         self._forget_motion()
         self._ref_feed = None
+        self._ref_turn = 0.0
         if problem is None:
             self._ref_feed = self._run_first(self._input(scan, prepared, None))
         self._append(self._poses[-1].copy(), ts)
@@ -516,11 +532,14 @@ class RadarOdometer:
         return self._sweep_input(scan) if prepared is None else prepared.input
 
     def _match(self, scan: RadarScan, x: np.ndarray, ts: int, twist):
-        """(pose, cov, new reference) of the new sweep against the reference, or None if non-finite.
+        """(pose, cov, new reference, its turn) of the new sweep against the reference, or None if
+        non-finite.
 
         Where the reference is further back than a gap (`radar_odom.odometry.gaps`) and the prior can
         predict the motion, the sweep is drawn in the predicted frame and the measured residual
-        composed with the prediction; the new reference is then the sweep in its own frame.
+        composed with the prediction; the new reference is then the sweep in its own frame (turn 0).
+        Otherwise, with ``centre_yaw``, the sweep is drawn turned by the predicted yaw
+        (`radar_odom.odometry.centring`) and the new reference keeps that turn.
         Poses leave here in the vehicle's frame: a model with a mount yaw
         (``ModelInfo.mount_yaw_rad``, `radar-odom adapt`) has its matches turned by it.
         """
@@ -531,22 +550,54 @@ class RadarOdometer:
         if self._movable and self._period.is_gap(interval_s):
             pred = self._prior.predict(interval_s, self._lead_s(ref_ts))
         if pred is None:
-            out = self._run_pair(x)
-            if out is None or not mount:
+            if self.centre_yaw:
+                out = self._match_centred(scan, x, twist, interval_s, ref_ts)
+                if out is None:
+                    return None
+            else:
+                out = self._run_pair(x)
+                if out is None:
+                    return None
+                out = (*out, 0.0) if self._ref_turn == 0.0 else (*uncentre(out[0], out[1], self._ref_turn, 0.0),
+                                                                 out[2], 0.0)
+            if not mount:
                 return out
-            return (*turn_frame(out[0], out[1], mount), out[2])
+            return (*turn_frame(out[0], out[1], mount), out[2], out[3])
         predicted = turn_frame(pred[0], None, -mount)[0]  # the prediction in the radar's frame
-        frame = to_xyyaw(invert(se2(*predicted)))
+        # the reference was drawn turned by a_ref: draw the new sweep in R(a_ref)'s view of the prediction
+        a_ref = self._ref_turn
+        turned = to_xyyaw(se2(0.0, 0.0, -a_ref) @ se2(*predicted))
+        frame = to_xyyaw(invert(se2(*turned)))
         moved = self._sweep_input(scan, SweepMotion(twist=twist, frame_pose=tuple(frame)))
         out = self._run_pair(moved, keep_reference=True)
         if out is None:
             return None
         residual, residual_cov, _ = out
-        pose, cov = turn_frame(*compose_residual(residual, residual_cov, predicted), mount)
+        pose, cov = uncentre(*compose_residual(residual, residual_cov, turned), a_ref, 0.0)
+        pose, cov = turn_frame(pose, cov, mount)
         new_ref = x if self.info.form == "pair" else self._run_first(x)
         if not np.all(np.isfinite(new_ref)):
             return None
-        return pose, cov, new_ref
+        return pose, cov, new_ref, 0.0
+
+    def _match_centred(self, scan: RadarScan, x: np.ndarray, twist, interval_s: float, ref_ts: int):
+        """(pose in the radar's frame, cov, new reference, its turn) with the new sweep drawn turned
+        by the predicted yaw, or None where the graph's output is not finite. A turn beyond
+        `MAX_TURN_RAD` re-draws the new reference in its own frame (a second graph call)."""
+        pred = self._prior.predict(interval_s, self._lead_s(ref_ts))
+        a_ref = self._ref_turn
+        a_new = next_turn(a_ref, None if pred is None else float(pred[0][2]))
+        drawn = x if a_new == 0.0 else self._sweep_input(scan, SweepMotion(twist=twist, frame_pose=(0.0, 0.0, a_new)))
+        out = self._run_pair(drawn)
+        if out is None:
+            return None
+        residual, residual_cov, new_ref = out
+        pose, cov = uncentre(residual, residual_cov, a_ref, a_new)
+        if abs(a_new) > MAX_TURN_RAD:
+            new_ref, a_new = (x if self.info.form == "pair" else self._run_first(x)), 0.0
+            if not np.all(np.isfinite(new_ref)):
+                return None
+        return pose, cov, new_ref, a_new
 
     def _run_first(self, x: np.ndarray) -> np.ndarray:
         """Reference for a stream's first sweep: its state (stream form) or the input (pair form).
@@ -584,7 +635,7 @@ class RadarOdometer:
         """Seconds from the end of the velocity's interval to ``start_us``."""
         return 0.0 if self._velocity_end_us is None else max(0.0, (start_us - self._velocity_end_us) * 1e-6)
 
-    def _accept(self, pose_ref, cov, new_ref, ts, dt_s, odo_rel=None, flags=None) -> Estimate:
+    def _accept(self, pose_ref, cov, new_ref, ts, dt_s, odo_rel=None, flags=None, ref_turn: float = 0.0) -> Estimate:
         """A good match of the new sweep against the reference sweep, fused with the prior."""
         ref_pose, ref_ts = self._poses[self._ref_index], self._stamps[self._ref_index]
         bridged = self._ref_index != len(self._poses) - 1
@@ -617,6 +668,7 @@ class RadarOdometer:
             self._prior.observe(rel, fused_cov, dt_s)
             self._velocity_end_us = ts
         self._ref_feed = new_ref
+        self._ref_turn = float(ref_turn)
         if GATED not in flags:
             self._recent_motion.append((np.asarray(rel, dtype=np.float64), dt_s))
         self._append(absolute, ts)
