@@ -558,8 +558,7 @@ class RadarOdometer:
                 out = self._run_pair(x)
                 if out is None:
                     return None
-                out = (*out, 0.0) if self._ref_turn == 0.0 else (*uncentre(out[0], out[1], self._ref_turn, 0.0),
-                                                                 out[2], 0.0)
+                out = (*out, 0.0)  # without centring every reference is drawn at turn 0
             if not mount:
                 return out
             return (*turn_frame(out[0], out[1], mount), out[2], out[3])
