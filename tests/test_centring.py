@@ -142,3 +142,29 @@ def test_centring_reads_more_of_a_simulated_bend():
         est = np.array([e.pose for e in (odo.step(f.scan) for f in frames) if e is not None])[4:]
         slopes[centre] = step_biases(gt, est, turning_deg=0.05)["yaw_slope"]
     assert slopes[True] > slopes[False] + 0.04, slopes
+
+
+def test_run_centre_yaw_flag_reaches_the_odometer(cli_model, tmp_path, capsys, monkeypatch):
+    """`radar-odom run --centre-yaw` runs the odometer with it; without the flag the default (off) holds."""
+    from radar_odom import RadarOdometer
+    from radar_odom.commands import run_sequence as rs
+    from radar_odom.commands.cli import main
+    from radar_odom.sim import write_drive
+
+    drive_dir = write_drive(tmp_path / "drive", seed=11, frames=4, progress=False)
+    made = []
+
+    class Recording(RadarOdometer):
+        def __init__(self, *a, **kw):
+            super().__init__(*a, **kw)
+            made.append(self.centre_yaw)
+
+    monkeypatch.setattr(rs, "RadarOdometer", Recording)
+    for flag, want in (([], False), (["--centre-yaw"], True), (["--no-centre-yaw"], False)):
+        out = tmp_path / f"out{len(made)}"
+        assert main(["run", str(drive_dir), "--model", str(cli_model), "-o", str(out), "--no-plot", *flag]) == 0
+        assert made[-1] is want, flag
+    capsys.readouterr()  # the runs' own output
+    with pytest.raises(SystemExit):
+        main(["run", "--help"])
+    assert "--centre-yaw, --no-centre-yaw" in " ".join(capsys.readouterr().out.split())

@@ -42,6 +42,11 @@ def register(subparsers) -> None:
     p.add_argument("--deskew", action=argparse.BooleanOptionalAction, default=None,
                    help="motion-compensate each sweep with the velocity so far before matching (default: "
                         f"{'on' if DESKEW_DEFAULT else 'off'}, as measured on real drives; see README)")
+    p.add_argument("--centre-yaw", action=argparse.BooleanOptionalAction, default=None,
+                   help="draw each sweep turned by the yaw the motion predicts, so the matcher's pull toward "
+                        "the pixel grid goes toward the prediction instead of 'no rotation' (default: off: it "
+                        "reads simulated bends more fully but measured worse on the real drive; "
+                        "docs/yaw-precision.md)")
     p.add_argument("--gt-time-offset", default="auto", metavar="auto|SECONDS",
                    help="GNSS/INS reference (RADIATE): its clock minus the radar's, in s (the reference for "
                         "radar time t is the sample at t + offset); 'auto' (default) estimates it by aligning "
@@ -124,7 +129,8 @@ def run(args) -> int:
             result = run_sequence(args.sequence, model, out, threads=args.threads, max_gap_s=args.max_gap_s,
                                   plot=not args.no_plot, motion_prior=not args.no_motion_prior,
                                   on_error=args.on_error, prefetch=0 if args.no_pipeline else DEFAULT_PREFETCH,
-                                  deskew=args.deskew, gt_time_offset=_offset(args.gt_time_offset, "--gt-time-offset"),
+                                  deskew=args.deskew, centre_yaw=args.centre_yaw,
+                                  gt_time_offset=_offset(args.gt_time_offset, "--gt-time-offset"),
                                   gt_heading_offset_deg=_offset(args.gt_heading_offset_deg, "--gt-heading-offset-deg"),
                                   topic=args.topic, bag_geometry=bag_geometry, bag_out=args.bag_out)
         except RadarOdomError:

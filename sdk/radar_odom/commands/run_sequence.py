@@ -148,7 +148,7 @@ def write_skipped_csv(path, skipped: list[dict]) -> Path:
 
 def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float | None = None, show_progress=True,
                  plot=True, title=None, motion_prior=True, on_error: str = "skip",
-                 prefetch: int = DEFAULT_PREFETCH, deskew: bool | None = None,
+                 prefetch: int = DEFAULT_PREFETCH, deskew: bool | None = None, centre_yaw: bool | None = None,
                  gt_time_offset: float | None = None, gt_heading_offset_deg: float | None = None,
                  topic: str | None = None, bag_geometry: dict | None = None, bag_out=None) -> RunResult:
     """Run ``model`` (path or `RadarOdometer`) over the recording ``seq_dir``; write outputs.
@@ -159,7 +159,7 @@ def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float | No
     ``prefetch``: sweeps decoded ahead on a worker thread while the graph runs
     (`radar_odom.odometry.pipeline.iter_estimates`; 0: no worker). The outputs do not depend on it;
     ``RunResult.throughput`` reports the pace (`radar_odom.odometry.pipeline.throughput`). ``max_gap_s``:
-    None crosses every gap (`RadarOdometer`); ``deskew``: None takes the odometer's default.
+    None crosses every gap (`RadarOdometer`); ``deskew``, ``centre_yaw``: None takes the odometer's default.
     A GNSS/INS reference (RADIATE ``GPS_IMU_Twist/``) is aligned to the radar first:
     ``gt_time_offset`` (s; the reference for radar time t is the sample at t + offset) and
     ``gt_heading_offset_deg`` (the INS heading minus the direction of travel, counter-clockwise)
@@ -181,7 +181,7 @@ def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float | No
     seq = open_recording(seq_dir, topic, bag_geometry)
     if bag_out is not None:  # what can be checked before the run, not after it
         check_bag_out(bag_out)
-    extra = {} if deskew is None else {"deskew": bool(deskew)}
+    extra = {k: bool(v) for k, v in (("deskew", deskew), ("centre_yaw", centre_yaw)) if v is not None}
     odo = model if isinstance(model, RadarOdometer) else RadarOdometer(
         model, threads=threads, max_gap_s=max_gap_s, motion_prior=motion_prior, **extra)
     odo.reset()
