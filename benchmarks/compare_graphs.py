@@ -15,6 +15,32 @@ import sys
 import time
 
 
+def interleaved_times(models, steps: int = 300, warmup: int = 20, threads: int = 2) -> list[list[float]]:
+    """Seconds per step of each model (paths or shipped names; stream form, one sweep shape), every step
+    running each model once on the same sweep, in alternating order, each with its own stream state."""
+    import numpy as np
+
+    from radar_odom.model_zoo import pretrained, pretrained_names
+    from radar_odom.onnx_model import OnnxModel
+
+    graphs = [OnnxModel(pretrained(m) if m in pretrained_names() else m, threads=threads) for m in models]
+    sweep, state_name = graphs[0].info.inputs
+    shape = graphs[0].info.input_shape
+    if any(g.info.input_shape != shape or g.info.form != "stream" for g in graphs):
+        sys.exit("the models must be stream-form graphs taking the same sweep shape")
+    x = (np.random.default_rng(0).random(shape) ** 8).astype(np.float32)  # sparse, radar-like
+    states = [np.zeros(g.info.state_shape, np.float32) for g in graphs]
+    times = [[] for _ in graphs]
+    order = list(range(len(graphs)))
+    for step in range(warmup + steps):
+        for i in (order if step % 2 else order[::-1]):
+            t0 = time.perf_counter()
+            states[i] = graphs[i].run({sweep: x, state_name: states[i]})["state"]
+            if step >= warmup:
+                times[i].append(time.perf_counter() - t0)
+    return times
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("models", nargs="+",
@@ -24,26 +50,9 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=2, help="onnxruntime threads (default: %(default)s)")
     args = ap.parse_args(argv)
 
+    times = interleaved_times(args.models, args.steps, args.warmup, args.threads)
     import numpy as np
 
-    from radar_odom.model_zoo import pretrained, pretrained_names
-    from radar_odom.onnx_model import OnnxModel
-
-    models = [OnnxModel(pretrained(m) if m in pretrained_names() else m, threads=args.threads) for m in args.models]
-    sweep, state_name = models[0].info.inputs
-    shape = models[0].info.input_shape
-    if any(m.info.input_shape != shape or m.info.form != "stream" for m in models):
-        sys.exit("the models must be stream-form graphs taking the same sweep shape")
-    x = (np.random.default_rng(0).random(shape) ** 8).astype(np.float32)  # sparse, radar-like
-    states = [np.zeros(m.info.state_shape, np.float32) for m in models]
-    times = [[] for _ in models]
-    order = list(range(len(models)))
-    for step in range(args.warmup + args.steps):
-        for i in (order if step % 2 else order[::-1]):
-            t0 = time.perf_counter()
-            states[i] = models[i].run({sweep: x, state_name: states[i]})["state"]
-            if step >= args.warmup:
-                times[i].append(time.perf_counter() - t0)
     ref = float(np.median(times[0]))
     print(f"{args.steps} steps each, interleaved, {args.threads} threads\n")
     print("| model | graph ms median | p90 | ratio to the first |")

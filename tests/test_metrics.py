@@ -221,3 +221,22 @@ def test_mahalanobis_jitter_makes_a_singular_covariance_usable():
     np.testing.assert_allclose(jitter, [(4e-4) ** 2, (4e-4) ** 2, (1e-5) ** 2])
     err = np.array([[4e-4, 0.0, 1e-5]])
     assert M.mahalanobis_sq(err, np.zeros((1, 3, 3)), jitter)[0] == pytest.approx(2.0, rel=1e-9)
+
+
+def test_segment_errors_with_start_appends_each_segments_first_frame():
+    # a 2 % scale error from frame 40 on only: segments starting at or after 40 read 2 %, earlier ones less
+    rel = np.tile([STEP_M, 0.0, 0.0], (199, 1))
+    est_rel = rel.copy()
+    est_rel[40:, 0] *= 1.02
+    gt, est = chain_relative(rel), chain_relative(est_rel)
+    plain = M.segment_errors(gt, est, step=4, lengths=(20, 50))
+    rows = M.segment_errors(gt, est, step=4, lengths=(20, 50), with_start=True)
+    assert rows.shape == (len(plain), 4)
+    np.testing.assert_array_equal(rows[:, :3], plain)
+    for length in (20, 50):
+        starts = rows[rows[:, 0] == length, 3]
+        np.testing.assert_array_equal(starts, np.arange(0, 200 - length, 4))  # every 4th frame that fits
+    late = rows[rows[:, 3] >= 40]
+    np.testing.assert_allclose(late[:, 1], 0.02, rtol=1e-6)
+    assert np.all(rows[rows[:, 3] + rows[:, 0] <= 40, 1] < 1e-9)  # wholly before the error: none
+    assert M.segment_errors(gt[:10], est[:10], lengths=(100,), with_start=True).shape == (0, 4)

@@ -38,8 +38,11 @@ def path_lengths_m(poses: np.ndarray) -> np.ndarray:
     return np.concatenate(([0.0], np.cumsum(steps)))
 
 
-def segment_errors(gt_poses: np.ndarray, est_poses: np.ndarray, step: int = 4, lengths=KITTI_LENGTHS_M) -> np.ndarray:
-    """Every KITTI segment of one sequence: float64[S, 3] rows (length_m, t_err, r_err).
+def segment_errors(gt_poses: np.ndarray, est_poses: np.ndarray, step: int = 4, lengths=KITTI_LENGTHS_M,
+                   with_start: bool = False) -> np.ndarray:
+    """Every KITTI segment of one sequence: float64[S, 3] rows (length_m, t_err, r_err); with
+    ``with_start`` float64[S, 4], the segment's first frame index appended (for resampling
+    segments by where they start, e.g. a block bootstrap of a drive's error).
 
     A segment starts every ``step`` frames; for each length L it ends at the first frame whose
     ground-truth path length exceeds the start's by more than L (none: no segment). With
@@ -61,8 +64,9 @@ def segment_errors(gt_poses: np.ndarray, est_poses: np.ndarray, step: int = 4, l
         err = invert(est_rel) @ gt_rel
         t_err = np.linalg.norm(err[:, :2, 2], axis=1) / length
         r_err = np.abs(np.arctan2(err[:, 1, 0], err[:, 0, 0])) / length
-        rows.append(np.column_stack([np.full(f.size, float(length)), t_err, r_err]))
-    return np.concatenate(rows) if rows else np.zeros((0, 3))
+        cols = [np.full(f.size, float(length)), t_err, r_err] + ([f.astype(np.float64)] if with_start else [])
+        rows.append(np.column_stack(cols))
+    return np.concatenate(rows) if rows else np.zeros((0, 4 if with_start else 3))
 
 
 def kitti_metrics(gt_poses, est_poses, step: int = 4, lengths=KITTI_LENGTHS_M, pooling: str = "segments") -> dict:
