@@ -1,7 +1,7 @@
 """`radar-odom run` on the shared real city drive, against its aligned GNSS/INS reference.
 
 The drive is ``../shared/data/real/radiate-2019-02-12-edinburgh`` (RADIATE, frames 201–480,
-280 sweeps, ≈ 445 m, three intervals of ≈ 0.5 s that are late stamps, not missing sweeps: `io.stamps`):
+280 sweeps, ≈ 445 m, three intervals of ≈ 0.5 s that are late stamps, not missing sweeps: `io.timebase`):
 read in place, never copied into the repository. The whole drive is run ONCE per module (through the CLI, with the
 shipped default model; ≈ 15–30 s on two cores); the other real tests build small tmp copies of a
 stretch of it (a hole cut into it, the sweeps mirrored) and run those.

@@ -10,7 +10,8 @@ Ground truth is always returned in the Oxford relative convention (see `radar_od
 - MulRan: absolute poses of ``global_pose.csv`` at the nearest stamp to each sweep's middle time
   (file name − ``sweep_period_s`` / 2; the true mean azimuth time differs by < 1 ms), converted
   as in `._zup`.
-- RADIATE: none: sweeps are ordered by frame number and timed by ``Navtech_Polar.txt``. Where
+- RADIATE: none: sweeps are ordered by frame number and timed by ``Navtech_Polar.txt``, those host
+  stamps fitted on the sensor's period (`.timebase`, ``Sequence.time_base``). Where
   the sequence has a ``GPS_IMU_Twist/`` folder, ``Sequence.reference`` is its GNSS/INS track
   (`.gnss_ins.GnssInsTrack`), but it is not turned into ``gt_relative``: its clock is not the
   radar's (+1.7 s on one drive, ≈ 64 s on another) and its heading is not the vehicle's axis,
