@@ -69,12 +69,14 @@ def export_classical(masking: str, out_dir: Path, model_path) -> Path | None:
     return path
 
 
-def run_model(model, scans, deskew: bool, with_estimates: bool = False, centre_yaw: bool = False):
+def run_model(model, scans, deskew: bool, with_estimates: bool = False, centre_yaw: bool = False,
+              sweep_period_s: float | None = None):
     """(absolute poses float64[N, 3, 3], seconds per sweep, gaps crossed) of one matcher, and
-    with ``with_estimates`` its N − 1 estimates (`radar_odom.Estimate`) and its profile too."""
+    with ``with_estimates`` its N − 1 estimates (`radar_odom.Estimate`) and its profile too.
+    ``sweep_period_s``: the recording's fitted period, as `radar-odom run` passes it."""
     from radar_odom import RadarOdometer
 
-    odo = RadarOdometer(model, deskew=deskew, centre_yaw=centre_yaw)
+    odo = RadarOdometer(model, deskew=deskew, centre_yaw=centre_yaw, sweep_period_s=sweep_period_s)
     t0 = time.perf_counter()
     ests = [e for e in (odo.step(s) for s in scans) if e is not None]
     gaps = sum("gap" in e.flags for e in ests)
@@ -195,13 +197,17 @@ def main(argv=None) -> int:
             else:
                 models[label] = path
     # the reference, once for every row: clock offset from the default model's own run
-    ref_poses, _, _ = run_model(pretrained(default), scans, deskew=False)
-    gt, info, note = gnss_reference(seq.reference, seq.timestamps_us, ref_poses)
+    # ... at the reader's own sweep times (its time base, `radar_odom.io.timebase`: one answer per run)
+    period_s = seq.time_base.period_s if seq.time_base is not None else None
+    ref_poses, _, _ = run_model(pretrained(default), scans, deskew=False, sweep_period_s=period_s)
+    gt, info, note = gnss_reference(seq.reference, seq.timestamps_us, ref_poses, time_base=seq.time_base)
     if args.stretch:
         a, _, b = args.stretch.partition(":")
         part = slice(int(a) if a else None, int(b) if b else None)
         scans = scans[part]
-        gt, _, _ = gnss_reference(seq.reference, seq.timestamps_us[part], None, info["clock_offset_s"])
+        # the stretch's times are the reader's already (fitted on the whole drive): taken as they are
+        gt, _, _ = gnss_reference(seq.reference, seq.timestamps_us[part], None, info["clock_offset_s"],
+                                  repair_stamps=False)
         note += f"; scored on sweeps {part.start or 0}:{part.stop or len(seq)} only ({len(scans)} sweeps)"
     print(note)
     deskews = (False,) if args.no_deskew else (False, True)
@@ -209,7 +215,7 @@ def main(argv=None) -> int:
     for label, model in models.items():
         for deskew in deskews:
             poses, s_per, gaps, ests, profile = run_model(model, scans, deskew, with_estimates=True,
-                                                          centre_yaw=args.centre_yaw)
+                                                          centre_yaw=args.centre_yaw, sweep_period_s=period_s)
             sc = score(gt, poses, ests)
             sc["d2"] = covariance_fit(gt, poses, ests, profile)
             results.append((label, deskew, sc, f"{1e3 * s_per:.0f}", gaps))

@@ -182,6 +182,9 @@ def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float | No
     if bag_out is not None:  # what can be checked before the run, not after it
         check_bag_out(bag_out)
     extra = {k: bool(v) for k, v in (("deskew", deskew), ("centre_yaw", centre_yaw)) if v is not None}
+    base = getattr(seq, "time_base", None)
+    if base is not None and base.period_s is not None:
+        extra["sweep_period_s"] = base.period_s  # the recording's own period: a gap is a missing sweep, not a median
     odo = model if isinstance(model, RadarOdometer) else RadarOdometer(
         model, threads=threads, max_gap_s=max_gap_s, motion_prior=motion_prior, **extra)
     odo.reset()
@@ -301,8 +304,10 @@ def _write_outputs(odo, seq, seq_dir, out_dir, estimates, prev_ts, skipped, pace
         try:
             track = getattr(seq, "reference", None)
             if track is not None:
+                # the reader's time base, where it fitted one: the reference at the very times the odometry used
                 gt, result.reference, result.reference_note = gnss_reference(
-                    track, traj.timestamps_us, traj.poses, *reference_offsets)
+                    track, traj.timestamps_us, traj.poses, *reference_offsets,
+                    time_base=getattr(seq, "time_base", None))
         except (SequenceError, ConfigError) as exc:  # unreadable or cannot be aligned: say so, no metrics
             result.reference_note = f"reference: GNSS/INS present but not used ({exc})"
             gt = None

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import SequenceError
+from ..errors import ConfigError, SequenceError
 
 # the automatic clock alignment is refused below these: a next-best minimum this close in cost
 # (1.17–1.42 on short, straight or non-overlapping windows that aligned 4–15 s wrong; 1.92 on the
@@ -14,14 +14,16 @@ MIN_CLOCK_PAIRS = 40
 
 
 def gnss_reference(track, timestamps_us, est_poses, time_offset_s=None, heading_offset_deg=None,
-                   repair_stamps: bool = True):
+                   repair_stamps: bool = True, time_base=None):
     """(reference poses float64[N, 3, 3] at ``timestamps_us``, info dict, one-line note) from a
     GNSS/INS track, its clock and heading offsets given or found from the data.
 
-    The stamps (``repair_stamps``): late sweep stamps are put back on the sensor's period first
-    (`radar_odom.io.stamps.repair_late_stamps`; RADIATE's host stamps run up to 0.27 s late for a
-    dozen sweeps at a time, which made the reference's steps 8 % short there and one step double);
-    ``info["late_stamps"]`` counts them.
+    The sweep times: ``time_base`` (a `radar_odom.io.timebase.TimeBase`, e.g. ``Sequence.time_base``:
+    the very times the reader gave the sweeps, one answer per run) where given, ``timestamps_us``
+    then being its fitted times or its recorded stamps; else, with ``repair_stamps``, the time base
+    fitted here on ``timestamps_us`` (RADIATE's host stamps run up to 0.27 s late for a dozen sweeps
+    at a time, which made the reference's steps 8 % short there and one step double); else the
+    stamps as given. ``info["late_stamps"]`` / ``["early_stamps"]`` count the stamps moved.
 
     The clock (None): by aligning ``est_poses``' yaw increments and step lengths with the track's
     (`gnss_ins.estimate_clock_offset_s`); refused with a `SequenceError` (the reference is then not
@@ -34,14 +36,21 @@ def gnss_reference(track, timestamps_us, est_poses, time_offset_s=None, heading_
     import math
 
     from ..io import gnss_ins
-    from ..io.stamps import repair_late_stamps
+    from ..io.timebase import fit_time_base
     from ..se2 import relative_from_absolute
 
     info = {}
-    repair = repair_late_stamps(timestamps_us) if repair_stamps and len(timestamps_us) else None
-    if repair is not None:
-        timestamps_us = repair.timestamps_us
-        info.update(late_stamps=int(repair.late.size), late_stamps_max_s=float(repair.corrections_us.max()) / 1e6)
+    base = time_base
+    if base is not None:
+        check_time_base(base, timestamps_us)
+    elif repair_stamps and len(timestamps_us):
+        base = fit_time_base(timestamps_us)
+    if base is not None:
+        timestamps_us = base.times_us
+        corr = base.corrections_us
+        info.update(late_stamps=int(base.late.size), early_stamps=int(base.early.size),
+                    late_stamps_max_s=float(max(corr.max(), 0)) / 1e6, sweeps_dropped=base.dropped,
+                    sensor_period_s=base.period_s)
     if heading_offset_deg is None:
         offsets = gnss_ins.heading_offset_track_rad(track)
         deg = np.degrees(offsets)
@@ -88,9 +97,19 @@ def gnss_reference(track, timestamps_us, est_poses, time_offset_s=None, heading_
                 "negative = clockwise), turned onto it")
     note = (f"reference: GNSS/INS, clock offset {info['clock_offset_s']:+.3f} s ({clock_how}; the reference for "
             f"radar time t is the sample at t + offset), {head}")
-    if repair is not None and repair.late.size:
-        note += f"; {repair.summary()} before sampling the track"
+    if base is not None and base.summary():
+        note += f"; {base.summary()} before sampling the track"
     return poses, info, note
+
+
+def check_time_base(base, timestamps_us) -> None:
+    """`ConfigError` where ``timestamps_us`` are neither the time base's fitted times nor its stamps:
+    a time base of another recording (or another stretch) would time the reference wrongly."""
+    t = np.asarray(timestamps_us, dtype=np.int64).reshape(-1)
+    if not (t.shape == base.times_us.shape and (np.array_equal(t, base.times_us) or np.array_equal(t, base.stamps_us))):
+        raise ConfigError(f"time_base does not belong to these {t.size} sweep times: it holds {base.times_us.size} "
+                          "sweeps whose times and stamps both differ from them; pass the Sequence.time_base of the "
+                          "recording the times come from, or none")
 
 
 def check_overlap(track, timestamps_us, poses, offset_s: float, found: str) -> None:

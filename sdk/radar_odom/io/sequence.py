@@ -10,7 +10,8 @@ Ground truth is always returned in the Oxford relative convention (see `radar_od
 - MulRan: absolute poses of ``global_pose.csv`` at the nearest stamp to each sweep's middle time
   (file name − ``sweep_period_s`` / 2; the true mean azimuth time differs by < 1 ms), converted
   as in `._zup`.
-- RADIATE: none: sweeps are ordered by frame number and timed by ``Navtech_Polar.txt``. Where
+- RADIATE: none: sweeps are ordered by frame number and timed by ``Navtech_Polar.txt``, those host
+  stamps fitted on the sensor's period (`.timebase`, ``Sequence.time_base``). Where
   the sequence has a ``GPS_IMU_Twist/`` folder, ``Sequence.reference`` is its GNSS/INS track
   (`.gnss_ins.GnssInsTrack`), but it is not turned into ``gt_relative``: its clock is not the
   radar's (+1.7 s on one drive, ≈ 64 s on another) and its heading is not the vehicle's axis,
@@ -37,7 +38,7 @@ from . import boreas, gnss_ins, mulran, oxford, radiate
 from ._layout import name_timestamp, to_microseconds
 from ._zup import nearest_poses, oxford_relative_from_zup
 from .scan_io import FORMATS, layout_evidence, load_scan, warn_format_contradiction
-from .stamps import repair_late_stamps
+from .timebase import TimeBase, fit_time_base
 
 # MulRan keeps sweeps under sensor_data/radar/ in the release, at the top level in some copies;
 # Oxford-form copies come first because they carry real per-azimuth times and encoder angles.
@@ -72,15 +73,17 @@ class Sequence:
     """Sweeps of a recording in time order; each is decoded only when asked for.
 
     ``len(seq)``, ``seq[i]`` and iteration give `Frame` objects. ``timestamps_us`` int64[N]
-    (file-name times in µs; RADIATE: frame times, late ones put back on the sensor's period unless
-    read with ``repair_stamps=False``), ``stamp_corrections_us`` int64[N] (how much earlier than
-    recorded each sweep's times are; zeros where nothing was late), ``paths`` (the PNGs),
-    ``gt_relative`` float64[N−1, 3] or None, ``format``, ``root``, ``reference`` (RADIATE's GNSS/INS
-    track or None, read on first use).
+    (file-name times in µs; RADIATE: the frame times fitted on the sensor's period, `time_base`,
+    unless read with ``repair_stamps=False``), ``stamp_corrections_us`` int64[N] (recorded − used
+    time of each sweep: > 0 a late stamp, < 0 an early one; zeros where used as recorded),
+    ``time_base`` (the `radar_odom.io.timebase.TimeBase` the times come from, or None: its period
+    and sweep indices tell a gap from a late stamp), ``paths`` (the PNGs), ``gt_relative``
+    float64[N−1, 3] or None, ``format``, ``root``, ``reference`` (RADIATE's GNSS/INS track or None,
+    read on first use).
     """
 
     def __init__(self, root: Path, format: str, paths, timestamps_us, gt_relative, load_kwargs: dict,
-                 stamp_corrections_us=None):
+                 stamp_corrections_us=None, time_base: TimeBase | None = None):
         self.root = Path(root)
         self.format = format
         self.paths = tuple(paths)
@@ -88,6 +91,7 @@ class Sequence:
         self.stamp_corrections_us = (np.zeros_like(self.timestamps_us) if stamp_corrections_us is None
                                      else np.asarray(stamp_corrections_us, dtype=np.int64))
         self.gt_relative = gt_relative
+        self.time_base = time_base
         self._load_kwargs = dict(load_kwargs)
 
     def __len__(self) -> int:
@@ -286,10 +290,11 @@ def read_sequence(
         max_pose_gap_s: Boreas/MulRan: a sweep whose nearest pose stamp is further away than
             this has no ground truth (0.1 s: 1 m at 10 m/s, and under half the 0.25 s sweep
             period, so a neighbouring sweep's pose is never taken).
-        repair_stamps: RADIATE: put sweep stamps that the recording host stamped late back on the
-            sensor's period (`radar_odom.io.stamps`; the shared city drive has three runs of them,
-            up to 0.26 s late, that look like dropped sweeps). The other formats' stamps are the
-            sensor's own and are used as recorded.
+        repair_stamps: RADIATE: time the sweeps by the recording's time base fitted on the sensor's
+            period (`radar_odom.io.timebase`, ``Sequence.time_base``): stamps the recording host
+            stamped late (the shared city drive has three runs of them, up to 0.26 s late, that look
+            like dropped sweeps) or early are put back, the host's jitter goes, dropped sweeps stay
+            gaps. The other formats' stamps are the sensor's own and are used as recorded.
         **load_kwargs: passed to `load_scan` for every sweep (e.g. ``range_resolution_m``); checked
             here (`check_load_options`).
 
@@ -303,7 +308,8 @@ def read_sequence(
         GroundTruthWarning: a ground-truth file that is there but not used (a folder in its place,
             rows that match none of the sweeps), besides the rows it leaves out.
         FormatWarning: an explicit ``format`` that the folder layout contradicts (as `load_scan`).
-        StampWarning: RADIATE stamps that were late and were put back (``repair_stamps``).
+        StampWarning: RADIATE stamps off the sensor's period by more than the host's jitter, or
+            dropped sweeps (``repair_stamps``): one warning, the time base's one-line summary.
     """
     check_load_options(load_kwargs)
     max_pose_gap_s = check_max_pose_gap_s(max_pose_gap_s)
@@ -322,14 +328,14 @@ def read_sequence(
         raise SequenceError(f"{root}: no {folder.name}/ folder of radar PNGs for format {fmt!r}")
     if fmt == "radiate":
         paths, stamps = radiate.radiate_sweeps(root)
-        corrections = None
+        corrections = base = None
         if repair_stamps:
-            repair = repair_late_stamps(stamps)
-            if repair.late.size:
-                stamps, corrections = repair.timestamps_us, repair.corrections_us
-                warnings.warn(f"{root}: {repair.summary()}; read with repair_stamps=False to keep them as recorded",
+            base = fit_time_base(stamps, period_hint_us=radiate.RADIATE_SWEEP_PERIOD_S * 1e6)
+            stamps, corrections = base.times_us, base.corrections_us
+            if base.summary():
+                warnings.warn(f"{root}: {base.summary()}; read with repair_stamps=False to keep them as recorded",
                               StampWarning, stacklevel=2)
-        return Sequence(root, fmt, paths, stamps, None, load_kwargs, corrections)
+        return Sequence(root, fmt, paths, stamps, None, load_kwargs, corrections, base)
     paths, stamps = _sweep_files(folder)
     if format is not None and load_kwargs.get("range_resolution_m") is None:
         found = layout_evidence(paths[0])

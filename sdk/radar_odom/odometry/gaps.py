@@ -8,8 +8,10 @@ P⁻¹), so the graph measures only the residual M of the prediction P, and comp
 the new sweep's pose in the reference frame is ``M ∘ P``, whose covariance is the residual's
 carried through that composition (P is not uncertain there: it only placed the window).
 
-`SweepPeriod` tells a gap from an ordinary step: the median of the recent intervals is the
-nominal period, and an interval beyond ``gap_factor`` × that is a gap.
+`SweepPeriod` tells a gap from an ordinary step: the sensor's period where known (a recording's
+fitted time base, `radar_odom.io.timebase`), else the median of the recent intervals, is the
+nominal period, and an interval beyond ``gap_factor`` × that is a gap. The median alone fails
+where a recording drops every other sweep for a while: its intervals all read two periods.
 """
 from __future__ import annotations
 
@@ -29,18 +31,22 @@ _MIN_INTERVALS = 3  # intervals seen before the period is trusted
 
 
 class SweepPeriod:
-    """The nominal interval between sweeps of a stream: the median of the last ``window`` ones."""
+    """The nominal interval between sweeps of a stream: ``known_s`` (the sensor's period, s) where
+    given, else the median of the last ``window`` ones."""
 
-    def __init__(self, window: int = 15, gap_factor: float = GAP_FACTOR):
+    def __init__(self, window: int = 15, gap_factor: float = GAP_FACTOR, known_s: float | None = None):
         self._dts: deque = deque(maxlen=int(window))
         self.gap_factor = float(gap_factor)
+        self.known_s = None if known_s is None else float(known_s)
 
     def reset(self) -> None:
         self._dts.clear()
 
     @property
     def nominal_s(self) -> float | None:
-        """Median interval (s), or None before three intervals are known."""
+        """The known period (s), else the median interval, or None before three intervals are known."""
+        if self.known_s is not None:
+            return self.known_s
         if len(self._dts) < _MIN_INTERVALS:
             return None
         return float(np.median(np.asarray(self._dts)))

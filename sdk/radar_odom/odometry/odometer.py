@@ -247,9 +247,12 @@ class RadarOdometer:
         deskew: de-skew each sweep with the velocity of the motion so far (constant over the
             sweep) before matching, so that the pose refers to the sweep's first-azimuth instant
             (Cartesian models; see "Motion compensation" in the module docstring).
+        sweep_period_s: the sensor's period (s) where known (``Sequence.time_base.period_s``, which
+            `run_sequence` passes): an interval over 1.5 of it is a gap. None (default): 1.5 of the
+            median of the last intervals (`radar_odom.odometry.gaps.SweepPeriod`).
 
-    Raises `ConfigError` (a ValueError) for an argument it cannot use (``max_gap_s`` NaN or
-    ≤ 0, a fraction outside [0, 1], an unknown ``on_gap``); `InvalidModelError` for a corrupt
+    Raises `ConfigError` (a ValueError) for an argument it cannot use (``max_gap_s`` or
+    ``sweep_period_s`` NaN or ≤ 0, a fraction outside [0, 1], an unknown ``on_gap``); `InvalidModelError` for a corrupt
     model file or metadata (see `radar_odom.onnx_model`).
 
     Threads: `step`, `skip`, `reset` and `trajectory` are serialised by a lock held for the
@@ -263,7 +266,7 @@ class RadarOdometer:
     def __init__(self, model, threads: int | None = None, providers=None, max_gap_s: float | None = None,
                  on_gap: str = "raise", min_valid_fraction: float = 0.5,
                  motion_prior: bool | MotionPriorConfig = True, min_coverage: float = MIN_COVERAGE,
-                 deskew: bool = DESKEW_DEFAULT, centre_yaw: bool | None = None):
+                 deskew: bool = DESKEW_DEFAULT, centre_yaw: bool | None = None, sweep_period_s: float | None = None):
         if on_gap not in ("raise", "reset"):
             raise ConfigError(f"on_gap must be 'raise' or 'reset', got {on_gap!r}")
         self.max_gap_s = None if max_gap_s is None else _number(max_gap_s, "max_gap_s", low=0.0, open_low=True)
@@ -299,7 +302,9 @@ class RadarOdometer:
         if not isinstance(centre_yaw, (bool, np.bool_)):
             raise ConfigError(f"centre_yaw must be True, False or None, got {centre_yaw!r}")
         self.centre_yaw = bool(centre_yaw) and self._movable
-        self._period = SweepPeriod()
+        # the sensor's period where known (a recording's time base): a gap is then > 1.5 of it, not of a median
+        self._period = SweepPeriod(known_s=None if sweep_period_s is None else _number(
+            sweep_period_s, "sweep_period_s", low=0.0, open_low=True))
         self.reset()
 
     @property
