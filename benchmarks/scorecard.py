@@ -148,8 +148,13 @@ def odometer(model: str, options: dict):
     return RadarOdometer(model, threads=1, **options)
 
 
-def run_scans(model: str, options: dict, scans):
-    """(absolute poses float64[N, 3, 3], estimates) of `RadarOdometer` over ``scans``."""
+def run_scans(model: str, options: dict, scans, seq=None):
+    """(absolute poses float64[N, 3, 3], estimates) of `RadarOdometer` over ``scans``; with the recording
+    ``seq`` they came from, the odometer knows its fitted sweep period as `radar-odom run` tells it
+    (where this runtime fits one)."""
+    base = getattr(seq, "time_base", None)
+    if base is not None:
+        options = {"sweep_period_s": base.period_s, **options}
     odo = odometer(model, options)
     ests = [e for e in (odo.step(s) for s in scans) if e is not None]
     return odo.trajectory.poses, ests
@@ -165,8 +170,11 @@ def measure_sim(model, options, data) -> dict:
     """Absolute poses (x, y, yaw rows) of the odometer over every simulated drive."""
     from radar_odom.io import read_sequence
 
-    return {kind: [xyyaw(run_scans(model, options, (f.scan for f in read_sequence(d["path"])))[0])
-                   for d in data[kind]] for kind in ("sim", "straight", "bends")}
+    out = {}
+    for kind in ("sim", "straight", "bends"):
+        seqs = (read_sequence(d["path"]) for d in data[kind])
+        out[kind] = [xyyaw(run_scans(model, options, (f.scan for f in seq), seq)[0]) for seq in seqs]
+    return out
 
 
 def measure_real(model, options) -> dict:
@@ -178,15 +186,17 @@ def measure_real(model, options) -> dict:
     out = {}
     drive = REAL / RADIATE_DRIVE
     if drive.is_dir():
-        scans = [f.scan for f in read_sequence(drive)]
-        out["whole"] = xyyaw(run_scans(model, options, scans)[0])
-        out["held_out"] = xyyaw(run_scans(model, options, scans[HELD_OUT_START:])[0])
+        seq = read_sequence(drive)
+        scans = [f.scan for f in seq]
+        out["whole"] = xyyaw(run_scans(model, options, scans, seq)[0])
+        out["held_out"] = xyyaw(run_scans(model, options, scans[HELD_OUT_START:], seq)[0])
     pair = REAL / OXFORD_PAIR
     if pair.is_dir():
         out["oxford"] = measure_oxford(model, options, pair)
     fog = REAL / FOG
     if fog.is_dir():
-        _, ests = run_scans(model, options, (f.scan for f in read_sequence(fog)))
+        seq = read_sequence(fog)
+        _, ests = run_scans(model, options, (f.scan for f in seq), seq)
         out["fog"] = [float(e.pose[0]) for e in ests]
     return out
 
@@ -259,9 +269,11 @@ def load_truth(data: dict, clock_offset_s) -> dict:
     if (REAL / RADIATE_DRIVE).is_dir() and clock_offset_s is not None:
         from radar_odom.evaluation.reference import gnss_reference
 
-        seq = read_sequence(REAL / RADIATE_DRIVE)
-        truth["whole"] = gnss_reference(seq.reference, seq.timestamps_us, None, clock_offset_s)[0]
-        truth["held_out"] = gnss_reference(seq.reference, seq.timestamps_us[HELD_OUT_START:], None, clock_offset_s)[0]
+        seq = read_sequence(REAL / RADIATE_DRIVE)  # its times are the recording's one time base
+        truth["whole"] = gnss_reference(seq.reference, seq.timestamps_us, None, clock_offset_s,
+                                        time_base=seq.time_base)[0]
+        truth["held_out"] = gnss_reference(seq.reference, seq.timestamps_us[HELD_OUT_START:], None, clock_offset_s,
+                                           repair_stamps=False)[0]
     if (REAL / OXFORD_PAIR).is_dir():
         row = next(csv.DictReader(open(REAL / OXFORD_PAIR / "gt" / "radar_odometry.csv")))
         truth["oxford"] = (float(row["x"]), float(row["yaw"]))
@@ -481,8 +493,8 @@ def main(argv=None) -> int:
     if (REAL / RADIATE_DRIVE).is_dir():  # the reference's clock: found once, from the candidate default model's run
         seq = read_sequence(REAL / RADIATE_DRIVE)
         default = names[0] if "cart-0.4" not in names else "cart-0.4"
-        poses, _ = run_scans(cand_models[default], cand_opts, (f.scan for f in seq))
-        _, info, note = gnss_reference(seq.reference, seq.timestamps_us, poses)
+        poses, _ = run_scans(cand_models[default], cand_opts, (f.scan for f in seq), seq)
+        _, info, note = gnss_reference(seq.reference, seq.timestamps_us, poses, time_base=seq.time_base)
         clock = info["clock_offset_s"]
         print(f"real drive reference: {note}", flush=True)
     specs = [{"side": "previous", "models": prev_models, "options": prev_opts, "data": data},
