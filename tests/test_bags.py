@@ -261,3 +261,41 @@ def test_an_unknown_bag_option_is_named_with_the_valid_ones(tmp_path):
     with pytest.raises(ConfigError, match=r"unknown bag option 'range_resolutoin_m'; open_bag takes "
                                           r"range_resolution_m, .*sweep_period_s"):
         open_bag(tmp_path / "b.mcap", range_resolutoin_m=0.1)
+
+
+def _lattice_scans(stamps_us, azimuths=40, bins=64):
+    """Small sweeps (uniform azimuths over 0.25 s) whose first azimuths are at ``stamps_us``."""
+    from radar_odom.scan import RadarScan
+
+    rng = np.random.default_rng(0)
+    az = np.linspace(0, 2 * np.pi, azimuths, endpoint=False)
+    return [RadarScan.from_arrays(int(t) + np.arange(azimuths) * (250_000 // azimuths), az,
+                                  rng.random((azimuths, bins)).astype(np.float32)) for t in stamps_us]
+
+
+def test_a_bags_late_host_stamps_are_put_on_the_recordings_time_base(tmp_path):
+    from radar_odom.errors import StampWarning
+
+    truth = 1_600_000_000_000_000 + 250_000 * np.arange(30)
+    recorded = truth.copy()
+    recorded[10:14] += [230_000, 180_000, 120_000, 60_000]  # a late run and its catch-up, like RADIATE's host
+    bag = write_bag(tmp_path / "late.mcap", _lattice_scans(recorded))
+    with pytest.warns(StampWarning, match="late"):
+        seq = open_bag(bag)
+    np.testing.assert_allclose(seq.timestamps_us, truth, atol=3_000)  # on the 250 ms lattice again
+    assert seq.time_base is not None and seq.time_base.period_s == pytest.approx(0.25, abs=1e-3)
+    assert set(seq.time_base.late.tolist()) >= {10, 11, 12}
+    scan = seq.scan(10)  # the sweep's own azimuth times move with it
+    assert abs(int(scan.timestamps_us[0]) - int(truth[10])) <= 3_000
+    np.testing.assert_array_equal(seq.stamps_ns, recorded * 1000)  # header stamps stay as recorded (bag out)
+    raw = open_bag(bag, repair_stamps=False)
+    np.testing.assert_array_equal(raw.timestamps_us, recorded)
+    assert raw.time_base is None and int(raw.scan(10).timestamps_us[0]) == int(recorded[10])
+
+
+def test_a_bag_with_stale_stamps_keeps_them_for_the_run_to_skip(tmp_path):
+    recorded = 1_600_000_000_000_000 + 250_000 * np.arange(8)
+    recorded[5] = recorded[4]  # a duplicate stamp: iter_estimates skips it as stale, one by one
+    seq = open_bag(write_bag(tmp_path / "stale.mcap", _lattice_scans(recorded)))
+    assert seq.time_base is None
+    np.testing.assert_array_equal(seq.timestamps_us, recorded)

@@ -19,11 +19,13 @@ there, with a `SequenceError` that says how to repair it; a message that cannot 
 from __future__ import annotations
 
 import threading
+import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import MissingExtraError, ScanFormatError, SequenceError
+from ..errors import MissingExtraError, ScanFormatError, SequenceError, StampWarning
 from ..ros.msgs import (
     NAVTECH_BSCAN_MSGDEF,
     NAVTECH_BSCAN_MSGTYPE,
@@ -94,17 +96,42 @@ def _first_azimuth_us(msg, msgtype: str, geometry: PolarImageGeometry) -> tuple[
     return head_ns, int(round(head_ns / 1000.0 - shift))
 
 
+def fit_bag_time_base(path, first_azimuth_us, period_s: float):
+    """The recording's time base (`radar_odom.io.timebase`) fitted on a bag's sweep stamps, or None where
+    they cannot carry one: fewer than `timebase.MIN_SWEEPS`, or not increasing (stale or duplicate stamps,
+    which `iter_estimates` skips one by one as it reads). A driver stamps each message on its host, late
+    by its load like RADIATE's recorder: one fit gives the reader, the gaps and de-skew the same times.
+    A `StampWarning` says what was moved."""
+    from .timebase import MIN_SWEEPS, fit_time_base
+
+    stamps = np.asarray(first_azimuth_us, dtype=np.int64)
+    if stamps.size < MIN_SWEEPS or not np.all(np.diff(stamps) > 0):
+        return None
+    try:
+        base = fit_time_base(stamps, period_hint_us=float(period_s) * 1e6)
+    except SequenceError as exc:  # not a spinning sensor's rhythm: the stamps are kept as recorded
+        warnings.warn(f"{path}: sweep stamps kept as recorded ({exc})", StampWarning, stacklevel=3)
+        return None
+    if base.summary():
+        warnings.warn(f"{path}: {base.summary()}; open the bag with repair_stamps=False to keep them as recorded",
+                      StampWarning, stacklevel=3)
+    return base
+
+
 class BagSequence(Sequence):
     """One radar topic of a bag as a `Sequence` (format ``"bag"``; no ground truth).
 
-    ``timestamps_us`` int64[N]: each sweep's first-azimuth time (µs); ``stamps_ns`` int64[N]: the
-    messages' header stamps (ns), which `radar_odom.io.bag_out` stamps the odometry with; ``topic``,
+    ``timestamps_us`` int64[N]: each sweep's first-azimuth time (µs), on the recording's time base
+    (``time_base``, `fit_bag_time_base`; as recorded with ``repair_stamps=False`` or where no base fits);
+    ``stamps_ns`` int64[N]: the messages' header stamps as recorded (ns), which `radar_odom.io.bag_out`
+    stamps the odometry with; ``topic``,
     ``msgtype``, ``geometry`` (`PolarImageGeometry`). ``paths[i]`` names the message
     (``BAG[TOPIC #i]``) in errors. `scan` decodes message ``i``, reading the bag forward from the
     last one asked for (in order, as `iter_estimates` asks, each message is read once).
     """
 
-    def __init__(self, path, topic: str | None = None, geometry: PolarImageGeometry | None = None):
+    def __init__(self, path, topic: str | None = None, geometry: PolarImageGeometry | None = None,
+                 repair_stamps: bool = True):
         path = Path(path)
         if not path.exists():
             raise SequenceError(f"{path}: no such bag file or folder")
@@ -148,7 +175,11 @@ class BagSequence(Sequence):
         self.bag_path = path
         self.stamps_ns = np.asarray(heads, dtype=np.int64)
         names = [f"{path}[{topic} #{i}]" for i in range(len(heads))]
-        super().__init__(path, BAG_FORMAT, names, firsts, None, {})
+        base = fit_bag_time_base(path, firsts, self.geometry.sweep_period_s) if repair_stamps else None
+        if base is None:
+            super().__init__(path, BAG_FORMAT, names, firsts, None, {})
+        else:
+            super().__init__(path, BAG_FORMAT, names, base.times_us, None, {}, base.corrections_us, base)
         self._lock = threading.Lock()
         self._reader = None
         self._cursor = None
@@ -179,7 +210,9 @@ class BagSequence(Sequence):
             except Exception as exc:
                 raise ScanFormatError(f"{self.paths[index]}: cannot deserialize the {conn.msgtype} message "
                                       f"({type(exc).__name__}: {exc})") from None
-        return scan_from_msg(msg, conn.msgtype, self.geometry, source=self.paths[index])
+        scan = scan_from_msg(msg, conn.msgtype, self.geometry, source=self.paths[index])
+        late = int(self.stamp_corrections_us[index])  # the sweep's times on the recording's time base
+        return replace(scan, timestamps_us=scan.timestamps_us - late) if late else scan
 
     def close(self) -> None:
         """Close the reader `scan` keeps open (it reopens on the next call)."""
@@ -197,7 +230,7 @@ class BagSequence(Sequence):
             pass
 
 
-def open_bag(path, topic: str | None = None, **geometry) -> BagSequence:
+def open_bag(path, topic: str | None = None, repair_stamps: bool = True, **geometry) -> BagSequence:
     """A radar topic of a bag as a `BagSequence`. ``geometry``: `PolarImageGeometry` fields
     (``range_resolution_m``, ``range_offset_m``, ``sweep_period_s``, ``stamp``,
     ``azimuth_offset_rad``, ``encoder_size``). ``topic`` None: the bag's only radar topic.
@@ -212,7 +245,7 @@ def open_bag(path, topic: str | None = None, **geometry) -> BagSequence:
     if unknown:
         raise ConfigError(f"unknown bag option{'s' if len(unknown) > 1 else ''} {', '.join(map(repr, unknown))}; "
                           f"open_bag takes {', '.join(known)}")
-    return BagSequence(path, topic, PolarImageGeometry(**geometry))
+    return BagSequence(path, topic, PolarImageGeometry(**geometry), repair_stamps=repair_stamps)
 
 
 def read_bag(path, topic: str | None = None, **geometry):
