@@ -332,6 +332,8 @@ def read_sequence(
         if repair_stamps:
             base = fit_time_base(stamps, period_hint_us=radiate.RADIATE_SWEEP_PERIOD_S * 1e6)
             stamps, corrections = base.times_us, base.corrections_us
+            if load_kwargs.get("sweep_period_s") is None:  # the azimuths spread over the fitted period too
+                load_kwargs = {**load_kwargs, "sweep_period_s": base.period_s}
             if base.summary():
                 warnings.warn(f"{root}: {base.summary()}; read with repair_stamps=False to keep them as recorded",
                               StampWarning, stacklevel=2)
