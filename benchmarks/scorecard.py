@@ -168,7 +168,7 @@ def xyyaw(poses) -> list:
 
 def measure_sim(model, options, data) -> dict:
     """Absolute poses (x, y, yaw rows) of the odometer over every simulated drive."""
-    from radar_odom.io import read_sequence
+    from radar_odom import read_sequence  # the public name: a previous release's runtime has it too
 
     out = {}
     for kind in ("sim", "straight", "bends"):
@@ -181,7 +181,7 @@ def measure_real(model, options) -> dict:
     """The odometer's absolute poses over the shared RADIATE drive (whole, and the held-out stretch as a
     fresh stream), its estimate over the Oxford pair (and the graph's own at common turns), and its
     forward steps over the fog sequence; a recording absent here is left out."""
-    from radar_odom.io import read_sequence
+    from radar_odom import read_sequence
 
     out = {}
     drive = REAL / RADIATE_DRIVE
@@ -204,9 +204,13 @@ def measure_real(model, options) -> dict:
 def measure_oxford(model, options, pair: Path) -> dict:
     """The odometer's estimate over the real Oxford pair, and the graph's own estimate with both sweeps
     drawn turned by each of `COMMON_TURNS_DEG`."""
-    from radar_odom.io import read_sequence
-    from radar_odom.odometry.sweep_input import SweepMotion, graph_input
+    from radar_odom import read_sequence
     from radar_odom.onnx_model import OnnxModel
+
+    try:
+        from radar_odom.odometry.sweep_input import SweepMotion, graph_input
+    except ImportError:  # a release before the odometry/ folder (--previous-code e006dd9)
+        from radar_odom.sweep_input import SweepMotion, graph_input
 
     scans = [f.scan for f in read_sequence(pair)]
     _, ests = run_scans(model, options, scans)
@@ -455,9 +459,10 @@ def main(argv=None) -> int:
     if args.measure:
         import warnings
 
-        from radar_odom.errors import StampWarning
+        from radar_odom import errors
 
-        warnings.simplefilter("ignore", StampWarning)  # the main process has said it once
+        if hasattr(errors, "StampWarning"):  # a previous release's runtime may not have it
+            warnings.simplefilter("ignore", errors.StampWarning)  # the main process has said it once
         spec = json.loads(Path(args.measure[0]).read_text())
         Path(args.measure[1]).write_text(json.dumps(measure_side(spec)))
         return 0
