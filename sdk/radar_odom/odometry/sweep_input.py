@@ -19,12 +19,13 @@ from ..scan import RadarScan
 # pixel by a measurable amount: the cached static maps are used instead (same image within 5 % of
 # a pixel, a fraction of the cost).
 _DESKEW_MIN_FRACTION_PX = 0.05
-# The two sweeps of a pair are drawn with one twist (a wrong velocity then errs both drawings
-# alike and mostly cancels in the match; two different ones shift the images against each
-# other by about half the difference over a sweep). The reference is redrawn with the stream's
-# newer velocity, at the cost of one graph call, only once the two would draw some pixel this
-# far apart; below it the new sweep takes the reference's twist.
-REDRAW_FRACTION_PX = 0.25
+# The two sweeps of a match are drawn with one twist: a velocity that is somewhat wrong then errs
+# both drawings alike, which mostly cancels in the match, where two different twists shift the
+# images against each other by about half their difference over a sweep. So the new sweep takes
+# the twist the reference was drawn with, and the reference is redrawn with the stream's newer
+# velocity (one graph call) only once the two would draw some pixel this far apart: it bounds how
+# stale the shared twist may be, not a mismatch (docs/deskew.md: the redraws and their cost).
+REDRAW_FRACTION_PX = 1.0
 
 
 @dataclass(frozen=True)
