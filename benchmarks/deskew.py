@@ -15,7 +15,8 @@ has and de-skew is judged where the truth is known. Per row: the mean yaw error 
 same pairs' yaw error minus de-skew off's (Δ, paired, so its standard error is the comparison's),
 the step scale (Σ estimated / Σ true forward step), the second step's x / true (the step the old
 de-skew misread), the largest |x error| of any step (m), the reference redraws
-(`RadarOdometer.reference_redraws`: extra graph calls) and the wall time per sweep.
+(`RadarOdometer.reference_redraws`: one extra graph call each; a stream's first match adds one
+more, its second match) and the wall time per sweep.
 
 ``oxford``: the shared real Oxford pair (``../shared/data/real/oxford-2019-01-10-14-36-48``, one
 pair with ground truth, 0.865 m while braking): x, x / true, the distance from the truth and the

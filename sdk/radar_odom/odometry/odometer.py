@@ -249,9 +249,10 @@ class RadarOdometer:
         motion_prior: True (default: `MotionPriorConfig()`), False (off), or a
             `MotionPriorConfig`: fuse each match with a constant-velocity prediction (see the
             module docstring and `radar_odom.odometry.motion_prior`).
-        deskew: de-skew each sweep with the velocity of the motion so far (constant over the
-            sweep) before matching, so that the pose refers to the sweep's first-azimuth instant
-            (Cartesian models; see "Motion compensation" in the module docstring).
+        deskew: de-skew both sweeps of each match with one velocity of the motion so far
+            (constant over the sweep) before matching, so that the pose refers to the two sweeps'
+            first-azimuth instants (Cartesian models; see "Motion compensation" in the module
+            docstring). ``reference_redraws`` counts the graph calls spent redrawing a reference.
 
     Raises `ConfigError` (a ValueError) for an argument it cannot use (``max_gap_s`` NaN or
     ≤ 0, a fraction outside [0, 1], an unknown ``on_gap``); `InvalidModelError` for a corrupt
