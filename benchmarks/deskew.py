@@ -85,6 +85,7 @@ def part_sim(models: dict, args) -> list[str]:
              "| model | scenario | prior | de-skew | yaw error ° / sweep (± s.e.) | Δ yaw error ° (± s.e.) | "
              "step scale | 2nd step x / true | max abs x err m | redraws / drive | ms / sweep |",
              "|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+    print("\n".join(lines), flush=True)
     variants = ((False, False, "off"), (False, True, "on"), (True, False, "frozen sweeps"))
     for scenario, speed in zip(args.scenarios, args.speeds):
         drives = {frozen: [straight_scans(scenario, speed, seed, args.frames, frozen) for seed in args.seeds]
@@ -130,6 +131,7 @@ def part_oxford(models: dict, args) -> list[str]:
     lines = [f"truth: x {gt[0]:.4f} m, y {gt[1]:+.4f} m, yaw {math.degrees(gt[2]):+.3f} °; interval {dt_s:.4f} s", "",
              "| model | de-skew | x m | x / true | distance from truth m | yaw ° | redraws |",
              "|---|---|---:|---:|---:|---:|---:|"]
+    print("\n".join(lines), flush=True)
     for name, model in models.items():
         for deskew in (False, True):
             est, redraws, _ = run(model, scans, deskew, prior=True)
@@ -141,6 +143,7 @@ def part_oxford(models: dict, args) -> list[str]:
               "mean speed the truth's x / interval):", "",
               "| model | deceleration a m/s² | reference / new sweep m/s | x m | x / true |",
               "|---|---:|---|---:|---:|"]
+    print("\n".join(lines[-5:]), flush=True)
     v = gt[0] / dt_s
     for name, model in models.items():
         graph = OnnxModel(model, threads=None)
@@ -172,6 +175,7 @@ def part_radiate_cost(models: dict, args) -> list[str]:
         scans = [f.scan for f in read_sequence(seq_dir)]
     lines = [f"{len(scans)} sweeps, the defaults (motion prior on)", "",
              "| model | de-skew | reference redraws (extra graph calls) | ms / sweep |", "|---|---|---:|---:|"]
+    print("\n".join(lines), flush=True)
     for name, model in models.items():
         for deskew in (False, True):
             _, redraws, per = run(model, scans, deskew, prior=True)
