@@ -238,7 +238,8 @@ def test_oxford_real_pair_with_deskew(real_data_dir):
     off = [plain.step(s) for s in scans][1].pose
     assert on.reference_redraws == 1  # the pair was drawn again with the velocity it measured
     assert not np.allclose(est, off)
-    # measured (docs/deskew.md): x/true 0.947 with, 0.955 without; the old de-skew halved later steps
-    assert est[0] / gt[0] == pytest.approx(0.95, abs=0.02)
+    # measured (docs/deskew.md): x/true 0.947 with, 0.955 without; a reference drawn unlike the new
+    # sweep reads a step about half as long
+    assert 0.93 <= est[0] / gt[0] <= 1.01
     assert np.hypot(*(est[:2] - gt[:2])) < 0.06
     assert abs(math.degrees(est[2] - gt[2])) < 0.1
