@@ -23,11 +23,12 @@ A, B, RES_BIN = 720, 700, 0.1  # a fine radar: 0.5° azimuths, 70 m
 GRID_RES, GRID_W = 0.2, 401
 
 
-def skewed_scan(points_world, twist, t0_us=0, period_us=250_000, blur=True):
+def skewed_scan(points_world, twist, t0_us=0, period_us=250_000, blur=True, taus_s=None):
     """Polar sweep of point reflectors seen by a sensor moving with body ``twist`` (at identity at
     the first azimuth): row a sees the points whose bearing from the sensor's pose at the row's
-    time falls into the row."""
-    taus = np.arange(A) * (period_us / A) * 1e-6
+    time falls into the row. ``taus_s``: each row's time after the first (default: uniform over
+    the period), also its timestamp."""
+    taus = np.arange(A) * (period_us / A) * 1e-6 if taus_s is None else np.asarray(taus_s, dtype=np.float64)
     img = np.zeros((A, B), np.float32)
     sx, sy, syaw = P._sensor_pose_at(taus, twist)
     for a in range(A):
@@ -43,7 +44,7 @@ def skewed_scan(points_world, twist, t0_us=0, period_us=250_000, blur=True):
     if blur:
         img = cv2.GaussianBlur(img, (0, 0), sigmaX=1.0, sigmaY=1.0)
     img = np.clip(img / img.max(), 0, 1).astype(np.float32)
-    ts = t0_us + np.round(np.arange(A) * (period_us / A)).astype(np.int64)
+    ts = t0_us + np.round(taus * 1e6).astype(np.int64)
     return RadarScan.from_arrays(ts, 2 * np.pi * np.arange(A) / A, img, range_resolution_m=RES_BIN)
 
 

@@ -69,8 +69,13 @@ on, each sweep is drawn as seen from the sensor at its first azimuth's instant
 of the last ``DESKEW_STEPS`` estimates, constant over the sweep, from each row's timestamp:
 Oxford and Boreas carry them, RADIATE's are spread uniformly over the period;
 `radar_odom.polar.moving_sample_maps`).
-Poses then refer to the first-azimuth instants of the two sweeps. Until the stream has a
-velocity (its first two sweeps) sweeps are drawn as recorded.
+Poses then refer to the first-azimuth instants of the two sweeps, so both sweeps of a match are
+drawn with the same twist: the reference is kept as recorded and redrawn (one extra graph call)
+when the stream's velocity has moved away from the twist it was drawn with
+(`radar_odom.odometry.sweep_input.twists_differ`); otherwise the new sweep takes the reference's
+twist. A stream's first match has no velocity yet: it is made as recorded, its pose over its
+interval gives the velocity, and the pair is drawn again with it and matched again (two extra
+graph calls, once per stream).
 
 Yaw centring (``centre_yaw=True``; Cartesian models; off by default): each sweep drawn turned by
 the predicted yaw, so the pull of the pixel grids goes toward the prediction rather than toward
@@ -103,7 +108,7 @@ from .sweep_checks import (  # noqa: F401  (re-exported: their home was here)
     model_region_m,
     sweep_problem,
 )
-from .sweep_input import SweepMotion, deskew_twist, graph_input
+from .sweep_input import SweepMotion, deskew_twist, graph_input, twists_differ
 
 DEGENERATE = "degenerate"
 BRIDGED = "bridged"
@@ -244,9 +249,10 @@ class RadarOdometer:
         motion_prior: True (default: `MotionPriorConfig()`), False (off), or a
             `MotionPriorConfig`: fuse each match with a constant-velocity prediction (see the
             module docstring and `radar_odom.odometry.motion_prior`).
-        deskew: de-skew each sweep with the velocity of the motion so far (constant over the
-            sweep) before matching, so that the pose refers to the sweep's first-azimuth instant
-            (Cartesian models; see "Motion compensation" in the module docstring).
+        deskew: de-skew both sweeps of each match with one velocity of the motion so far
+            (constant over the sweep) before matching, so that the pose refers to the two sweeps'
+            first-azimuth instants (Cartesian models; see "Motion compensation" in the module
+            docstring). ``reference_redraws`` counts the graph calls spent redrawing a reference.
         sweep_period_s: the sensor's period (s) where known (``Sequence.time_base.period_s``, which
             `run_sequence` passes): an interval over 1.5 of it is a gap. None (default): 1.5 of the
             median of the last intervals (`radar_odom.odometry.gaps.SweepPeriod`).
@@ -327,6 +333,9 @@ class RadarOdometer:
         self._ref_feed: np.ndarray | None = None  # state (stream form) or sweep input (pair form)
         self._ref_index = -1  # trajectory index of the sweep ``_ref_feed`` belongs to
         self._ref_turn = 0.0  # turn (rad) the reference was drawn with (`radar_odom.odometry.centring`)
+        self._ref_scan: RadarScan | None = None  # the reference as recorded, redrawn when de-skew needs it
+        self._ref_twist: tuple | None = None  # the de-skew twist the reference was drawn with
+        self.reference_redraws = 0  # graph calls spent redrawing a reference for de-skew (this stream)
         self._recent_motion: deque = deque(maxlen=DESKEW_STEPS)  # (relative pose, interval s)
         self._forget_motion()
         self._range_scale: tuple | None = None  # (range resolution m, offset m) of the stream's sweeps
@@ -446,8 +455,9 @@ class RadarOdometer:
             # A stream must start from a sweep that can be matched: a degenerate first sweep is
             # recorded at identity but never becomes the reference.
             if problem is None:
-                self._ref_feed = self._run_first(self._input(scan, prepared, self._deskew_twist(scan)))
+                self._ref_feed = self._run_first(self._input(scan, prepared, None))  # no velocity yet
                 self._ref_turn = 0.0
+                self._keep_reference(scan, None)
                 self._set_reference(0)
             self._append(np.eye(3), ts)
             return None
@@ -458,21 +468,27 @@ class RadarOdometer:
         odo_rel = odometry.relative_pose(dt_s) if odometry is not None else None
         if problem is not None:
             return self._degenerate(problem, ts, dt_s, odo_rel, flags)
-        twist = self._deskew_twist(scan)
-        x = self._input(scan, prepared, twist)
         if self._ref_feed is None:
             # every earlier sweep of this stream was degenerate: nothing to match against yet,
             # so this one gets the prior and becomes the reference
+            twist = self._deskew_twist(scan)
             est = self._degenerate("no_reference", ts, dt_s, odo_rel, flags)
-            self._ref_feed = self._run_first(x)
+            self._ref_feed = self._run_first(self._input(scan, prepared, twist))
             self._ref_turn = 0.0
+            self._keep_reference(scan, twist)
             self._set_reference(len(self._poses) - 1)
             return est
+        twist = self._pair_twist(scan)
+        x = self._input(scan, prepared, twist)
         out = self._match(scan, x, ts, twist)
+        if out is not None and twist is None and self.deskew and not self._recent_motion:
+            out, twist = self._match_deskewed_first(scan, ts, out)
         if out is None:
             return self._degenerate("nonfinite", ts, dt_s, odo_rel, flags)
         pose_ref, cov, new_ref, new_turn = out
-        return self._accept(pose_ref, cov, new_ref, ts, dt_s, odo_rel, flags, ref_turn=new_turn)
+        est = self._accept(pose_ref, cov, new_ref, ts, dt_s, odo_rel, flags, ref_turn=new_turn)
+        self._keep_reference(scan, twist)
+        return est
 
     # --- pieces ---------------------------------------------------------------------------
     def _check_range_scale(self, scan: RadarScan, first: bool) -> None:
@@ -497,6 +513,7 @@ class RadarOdometer:
         self._ref_turn = 0.0
         if problem is None:
             self._ref_feed = self._run_first(self._input(scan, prepared, None))
+            self._keep_reference(scan, None)
         self._append(self._poses[-1].copy(), ts)
         if self._ref_feed is not None:
             self._set_reference(len(self._poses) - 1)
@@ -519,7 +536,50 @@ class RadarOdometer:
             return None
         poses = np.array([m[0] for m in self._recent_motion])
         seconds = sum(m[1] for m in self._recent_motion)
-        return deskew_twist(poses.sum(axis=0) / seconds, scan, self.profile)
+        return self._radar_twist(poses.sum(axis=0) / seconds, scan)
+
+    def _radar_twist(self, velocity, scan: RadarScan):
+        """`deskew_twist` of a velocity (x m/s, y m/s, yaw rad/s) in the vehicle's frame, the frame
+        estimates are reported in: turned into the radar's by the model's mount yaw."""
+        radar = turn_frame(np.asarray(velocity, dtype=np.float64), None, -self.info.mount_yaw_rad)[0]
+        return deskew_twist(radar, scan, self.profile)
+
+    def _pair_twist(self, scan: RadarScan):
+        """The twist the new sweep is drawn with, the one the reference was drawn with: the
+        stream's (`_deskew_twist`) once that has moved away from the reference's (the reference
+        redrawn with it, one graph call), else the reference's."""
+        want = self._deskew_twist(scan)
+        if not self.deskew or self._ref_scan is None or not twists_differ(want, self._ref_twist, scan, self.profile):
+            return self._ref_twist if self.deskew else None
+        return want if self._redraw_reference(want) else self._ref_twist
+
+    def _redraw_reference(self, twist) -> bool:
+        """Draw the reference sweep again with ``twist`` (and its turn) and make it the reference;
+        False (the reference kept) where the graph's output is not finite."""
+        turn = (0.0, 0.0, self._ref_turn) if self._ref_turn else None
+        feed = self._run_first(self._sweep_input(self._ref_scan, SweepMotion(twist=twist, frame_pose=turn)))
+        self.reference_redraws += 1
+        if not np.all(np.isfinite(feed)):
+            return False
+        self._ref_feed, self._ref_twist = feed, twist
+        return True
+
+    def _match_deskewed_first(self, scan: RadarScan, ts: int, out):
+        """(match, twist) of a stream's first match with de-skew on: ``out``, made as recorded,
+        gives the velocity over its interval; the reference and the new sweep are drawn with it
+        and matched again (two graph calls). ``out`` and None where that velocity moves no pixel;
+        (None, None) where the second match is not finite (the reference then stays redrawn)."""
+        interval_s = (ts - self._stamps[self._ref_index]) * 1e-6
+        twist = self._radar_twist(np.asarray(out[0]) / interval_s, scan)
+        if twist is None or not self._redraw_reference(twist):
+            return out, None
+        again = self._match(scan, self._input(scan, None, twist), ts, twist)
+        return (again, twist) if again is not None else (None, None)
+
+    def _keep_reference(self, scan: RadarScan, twist) -> None:
+        """Remember the new reference sweep as recorded and the twist it was drawn with (de-skew
+        redraws it when the stream's velocity moves away from that twist)."""
+        self._ref_scan, self._ref_twist = (scan, twist) if self.deskew else (None, None)
 
     def _interval_flags(self, dt_s: float) -> set:
         """{"gap"} when ``dt_s`` (since the previous sweep) is a gap, else empty; then the interval

@@ -19,6 +19,13 @@ from ..scan import RadarScan
 # pixel by a measurable amount: the cached static maps are used instead (same image within 5 % of
 # a pixel, a fraction of the cost).
 _DESKEW_MIN_FRACTION_PX = 0.05
+# The two sweeps of a match are drawn with one twist: a velocity that is somewhat wrong then errs
+# both drawings alike, which mostly cancels in the match, where two different twists shift the
+# images against each other by about half their difference over a sweep. So the new sweep takes
+# the twist the reference was drawn with, and the reference is redrawn with the stream's newer
+# velocity (one graph call) only once the two would draw some pixel this far apart: it bounds how
+# stale the shared twist may be, not a mismatch (docs/deskew.md: the redraws and their cost).
+REDRAW_FRACTION_PX = 1.0
 
 
 @dataclass(frozen=True)
@@ -42,21 +49,38 @@ def sweep_duration_s(scan: RadarScan) -> float:
     return max(float(t[-1] - t[0]) * 1e-6, 0.0)
 
 
+def sweep_shift_m(twist, scan: RadarScan, profile) -> float:
+    """Largest displacement (m) the body ``twist`` (vx m/s, vy m/s, yaw rate rad/s; None: still)
+    gives a point of the model's grid over ``scan``'s duration: the translation plus the yaw's arc
+    at the grid's edge (``profile.extent_m``)."""
+    if twist is None:
+        return 0.0
+    v = np.asarray(twist, dtype=np.float64).reshape(3)
+    return sweep_duration_s(scan) * (float(np.hypot(v[0], v[1])) + abs(float(v[2])) * profile.extent_m)
+
+
 def deskew_twist(velocity, scan: RadarScan, profile) -> tuple | None:
     """The twist to de-skew ``scan`` with, or None where it would move no pixel measurably.
 
-    ``velocity``: float[3] (vx m/s, vy m/s, yaw rate rad/s) or None (no estimate yet).
+    ``velocity``: float[3] (vx m/s, vy m/s, yaw rate rad/s; the radar's frame) or None (no
+    estimate yet).
     """
     if velocity is None or profile.input_kind == "polar":
         return None
     v = np.asarray(velocity, dtype=np.float64).reshape(3)
     if not np.all(np.isfinite(v)):
         return None
-    duration = sweep_duration_s(scan)
-    shift_m = duration * (float(np.hypot(v[0], v[1])) + abs(float(v[2])) * profile.extent_m)
-    if shift_m < _DESKEW_MIN_FRACTION_PX * profile.resolution_m:
+    if sweep_shift_m(v, scan, profile) < _DESKEW_MIN_FRACTION_PX * profile.resolution_m:
         return None
     return tuple(float(x) for x in v)
+
+
+def twists_differ(a, b, scan: RadarScan, profile) -> bool:
+    """True where drawing ``scan`` with twist ``a`` instead of ``b`` (either None: still) moves some
+    pixel of the model's grid by `REDRAW_FRACTION_PX` or more: the reference must then be redrawn."""
+    za = np.zeros(3) if a is None else np.asarray(a, dtype=np.float64).reshape(3)
+    zb = np.zeros(3) if b is None else np.asarray(b, dtype=np.float64).reshape(3)
+    return sweep_shift_m(za - zb, scan, profile) >= REDRAW_FRACTION_PX * profile.resolution_m
 
 
 def graph_input(scan: RadarScan, info, motion: SweepMotion | None = None) -> np.ndarray:
