@@ -84,10 +84,8 @@ read more fully, the real drive worse, hence off).
 """
 from __future__ import annotations
 
-import math
 import threading
 from collections import deque
-from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -95,9 +93,11 @@ from ..errors import ConfigError, ModelMismatchError, StreamError
 from ..onnx_model import OnnxModel
 from ..scan import RadarScan
 from ..se2 import invert, se2, to_xyyaw, turn_frame
+from .arguments import config_number, stream_timestamp
 from .centring import MAX_TURN_RAD, next_turn, uncentre
+from .estimate import BRIDGED, DEGENERATE, Estimate, PreparedSweep, Trajectory, window_covariance  # noqa: F401
 from .gaps import GAP, NEW_SEGMENT, NEW_SEGMENT_GAP_S, SweepPeriod, compose_residual
-from .motion_prior import GATED, PRIOR_DOMINATED, ExternalOdometry, MotionPrior, MotionPriorConfig
+from .motion_prior import GATED, ExternalOdometry, MotionPrior, MotionPriorConfig
 from .motion_prior import compose as compose_relative
 from .motion_prior import fuse as fuse_estimates
 from .sweep_checks import (  # noqa: F401  (re-exported: their home was here)
@@ -110,126 +110,10 @@ from .sweep_checks import (  # noqa: F401  (re-exported: their home was here)
 )
 from .sweep_input import SweepMotion, deskew_twist, graph_input, twists_differ
 
-DEGENERATE = "degenerate"
-BRIDGED = "bridged"
 # De-skew is on by default only where it measured better on real drives (README, real-drive table)
 DESKEW_DEFAULT = False
 CENTRE_YAW_DEFAULT = False  # `radar_odom.odometry.centring`; None in the constructor reads this
 DESKEW_STEPS = 4  # estimates averaged into the de-skew velocity (1 s at 4 Hz)
-
-
-@dataclass(frozen=True)
-class PreparedSweep:
-    """A sweep made ready for `RadarOdometer.step` by `RadarOdometer.prepare`.
-
-    The per-sweep work that does not depend on the stream (the degeneracy test and the graph
-    input, e.g. the polar-to-Cartesian resampling) done ahead, possibly on another thread, so
-    that `step` only runs the graph. ``problem``: `sweep_problem`'s verdict; ``input``: the
-    graph input, or None when the sweep is degenerate or the model cannot take it (then `step`
-    raises `ModelMismatchError` in its turn, as for the bare scan).
-    """
-
-    scan: RadarScan
-    problem: str | None
-    input: np.ndarray | None
-    ready: bool = field(default=False, repr=False)  # False: step() works from the scan alone
-    owner: object = field(default=None, repr=False, compare=False)  # the odometer that prepared it
-
-
-@dataclass(frozen=True)
-class Estimate:
-    """One odometry step.
-
-    Attributes:
-        pose: float64[3] (x m, y m, yaw rad): the new sweep's frame in the previous sweep's frame
-            (the vehicle's frames where the model carries a mount yaw, ``radar-odom adapt``).
-        covariance: float64[3, 3] over (x, y, yaw), symmetric.
-        timestamp_us: the new sweep's timestamp (first azimuth, the Oxford file name).
-        flags: empty for a normal match; ``{"degenerate", reason}`` for a prior-only estimate
-            (reason: ``invalid_rows``, ``partial_coverage``, ``saturated``, ``blank``,
-            ``noise_only`` (see `sweep_problem`), ``nonfinite``, ``no_reference``, or the
-            reason given to `RadarOdometer.skip`, e.g. ``unreadable``),
-            ``{"bridged"}`` when matched against an older sweep across a degenerate one;
-            with the motion prior also ``"prior_dominated"`` (the motion comes mostly from the
-            prior), ``"gated"`` (the match was implausible and left out: the pose is the
-            prior's) and ``"prior_reset"`` (a match failing the gate taken as it is, after
-            consecutive gated steps). A degenerate estimate is prior-only by definition and
-            carries no ``"prior_dominated"``.
-        measurement: float64[3] the match as the graph gave it (re-expressed against the
-            previous sweep like ``pose`` when bridged), before the motion prior; for a
-            degenerate sweep the prior-only pose. Defaults to ``pose``.
-        measurement_covariance: float64[3, 3] its covariance. Defaults to ``covariance``.
-    """
-
-    pose: np.ndarray
-    covariance: np.ndarray
-    timestamp_us: int
-    flags: frozenset = field(default_factory=frozenset)
-    measurement: np.ndarray | None = None
-    measurement_covariance: np.ndarray | None = None
-
-    def __post_init__(self):
-        if self.measurement is None:
-            object.__setattr__(self, "measurement", np.array(self.pose, dtype=np.float64))
-        if self.measurement_covariance is None:
-            object.__setattr__(self, "measurement_covariance", np.array(self.covariance, dtype=np.float64))
-
-    @property
-    def degenerate(self) -> bool:
-        return DEGENERATE in self.flags
-
-    @property
-    def prior_dominated(self) -> bool:
-        return PRIOR_DOMINATED in self.flags
-
-    @property
-    def gated(self) -> bool:
-        return GATED in self.flags
-
-
-@dataclass(frozen=True)
-class Trajectory:
-    """Absolute poses of every sweep of the current stream (first = identity)."""
-
-    poses: np.ndarray  # float64[N, 3, 3]
-    timestamps_us: np.ndarray  # int64[N]
-
-    def __len__(self) -> int:
-        return len(self.timestamps_us)
-
-
-def _number(value, name: str, low: float | None = None, high: float | None = None,
-            open_low: bool = False) -> float:
-    """``float(value)`` if finite and within the bounds, else `ConfigError` naming ``name``."""
-    try:
-        out = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError(f"{name} must be a number, got {value!r}") from None
-    if isinstance(value, (bool, np.bool_)) or not math.isfinite(out):
-        raise ConfigError(f"{name} must be a finite number, got {value!r}")
-    if low is not None and (out <= low if open_low else out < low):
-        raise ConfigError(f"{name} must be {'>' if open_low else '≥'} {low:g}, got {out:g}")
-    if high is not None and out > high:
-        raise ConfigError(f"{name} must be ≤ {high:g}, got {out:g}")
-    return out
-
-
-def _timestamp(value, source: str) -> int:
-    """An integer µs timestamp within int64, else `StreamError`."""
-    try:
-        out = int(value)
-    except (TypeError, ValueError, OverflowError):
-        raise StreamError(f"{source}: timestamp {value!r} is not an integer number of µs") from None
-    if not -(2**63) <= out < 2**63:
-        raise StreamError(f"{source}: timestamp {out} µs is beyond the int64 range")
-    return out
-
-
-def window_covariance(profile) -> np.ndarray:
-    """float64[3, 3]: covariance of a uniform pose over the search window (knows nothing)."""
-    a = profile.translation_cells * profile.resolution_m
-    r = round(profile.rotation_range_rad / profile.rotation_step_rad) * profile.rotation_step_rad
-    return np.diag([a * a / 3.0, a * a / 3.0, r * r / 3.0])
 
 
 class RadarOdometer:
@@ -275,11 +159,11 @@ class RadarOdometer:
                  deskew: bool = DESKEW_DEFAULT, centre_yaw: bool | None = None, sweep_period_s: float | None = None):
         if on_gap not in ("raise", "reset"):
             raise ConfigError(f"on_gap must be 'raise' or 'reset', got {on_gap!r}")
-        self.max_gap_s = None if max_gap_s is None else _number(max_gap_s, "max_gap_s", low=0.0, open_low=True)
+        self.max_gap_s = None if max_gap_s is None else config_number(max_gap_s, "max_gap_s", low=0.0, open_low=True)
         if not isinstance(deskew, (bool, np.bool_)):
             raise ConfigError(f"deskew must be True or False, got {deskew!r}")
-        self.min_valid_fraction = _number(min_valid_fraction, "min_valid_fraction", low=0.0, high=1.0)
-        self.min_coverage = _number(min_coverage, "min_coverage", low=0.0, high=1.0)
+        self.min_valid_fraction = config_number(min_valid_fraction, "min_valid_fraction", low=0.0, high=1.0)
+        self.min_coverage = config_number(min_coverage, "min_coverage", low=0.0, high=1.0)
         if isinstance(motion_prior, MotionPriorConfig):
             config, use = motion_prior, True
         elif isinstance(motion_prior, (bool, np.bool_)):
@@ -309,7 +193,7 @@ class RadarOdometer:
             raise ConfigError(f"centre_yaw must be True, False or None, got {centre_yaw!r}")
         self.centre_yaw = bool(centre_yaw) and self._movable
         # the sensor's period where known (a recording's time base): a gap is then > 1.5 of it, not of a median
-        self._period = SweepPeriod(known_s=None if sweep_period_s is None else _number(
+        self._period = SweepPeriod(known_s=None if sweep_period_s is None else config_number(
             sweep_period_s, "sweep_period_s", low=0.0, open_low=True))
         self.reset()
 
@@ -416,7 +300,7 @@ class RadarOdometer:
         keeps one pose per sweep. Time checks are those of `step` (`StreamError`); the first
         sweep of a stream is recorded at identity (returns None).
         """
-        ts = _timestamp(timestamp_us, source)
+        ts = stream_timestamp(timestamp_us, source)
         with self._lock:
             if self._check_time(ts, source):
                 self._append(np.eye(3), ts)
