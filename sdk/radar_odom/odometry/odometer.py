@@ -97,6 +97,7 @@ from .arguments import config_number, stream_timestamp
 from .centring import MAX_TURN_RAD, next_turn, uncentre
 from .estimate import BRIDGED, DEGENERATE, Estimate, PreparedSweep, Trajectory, window_covariance  # noqa: F401
 from .gaps import GAP, NEW_SEGMENT, NEW_SEGMENT_GAP_S, SweepPeriod, compose_residual
+from .graph_step import GraphStep
 from .motion_prior import GATED, ExternalOdometry, MotionPrior, MotionPriorConfig
 from .motion_prior import compose as compose_relative
 from .motion_prior import fuse as fuse_estimates
@@ -174,6 +175,7 @@ class RadarOdometer:
         self._prior = MotionPrior(config)
         self._model = model if isinstance(model, OnnxModel) else OnnxModel(model, threads, providers)
         self.info = self._model.info
+        self._graph = GraphStep(self._model)
         if self.info.form == "sequence":
             raise ModelMismatchError(
                 f"{self._model.path.name} is a sequence-form model (offline batches of consecutive sweeps); "
@@ -548,32 +550,12 @@ class RadarOdometer:
         return pose, cov, new_ref, a_new
 
     def _run_first(self, x: np.ndarray) -> np.ndarray:
-        """Reference for a stream's first sweep: its state (stream form) or the input (pair form).
-
-        The stream graph has one signature, so the first state comes from a step against an
-        all-zero state whose pose is discarded (one wasted correlation per stream).
-        """
-        if self.info.form == "pair":
-            return x
-        zero_state = np.zeros(self.info.state_shape, dtype=np.float32)
-        return self._model.run({self.info.inputs[0]: x, self.info.inputs[1]: zero_state})["state"]
+        """The reference state of a sweep with graph input ``x`` (`GraphStep.first`)."""
+        return self._graph.first(x)
 
     def _run_pair(self, x: np.ndarray, keep_reference: bool = False):
-        """(pose, cov, new reference) matching ``x`` against the reference, or None if non-finite
-        (``keep_reference``: the new reference is not needed and is not checked)."""
-        if self.info.form == "pair":
-            out = self._model.run({self.info.inputs[0]: self._ref_feed, self.info.inputs[1]: x})
-            new_ref = x
-        else:
-            out = self._model.run({self.info.inputs[0]: x, self.info.inputs[1]: self._ref_feed})
-            new_ref = out["state"]
-        pose = np.asarray(out["pose"], dtype=np.float64).reshape(3)
-        cov = np.asarray(out["covariance"], dtype=np.float64).reshape(3, 3)
-        if not (np.all(np.isfinite(pose)) and np.all(np.isfinite(cov))):
-            return None
-        if not keep_reference and not np.all(np.isfinite(new_ref)):
-            return None
-        return pose, 0.5 * (cov + cov.T), new_ref
+        """(pose, cov, new reference) of ``x`` against the current reference, or None (`GraphStep.match`)."""
+        return self._graph.match(x, self._ref_feed, keep_reference)
 
     def _set_reference(self, index: int) -> None:
         self._ref_index = index
