@@ -89,10 +89,11 @@ from collections import deque
 
 import numpy as np
 
-from ..errors import ConfigError, ModelMismatchError, StreamError
+from ..errors import ConfigError, ModelMismatchError
 from ..onnx_model import OnnxModel
 from ..scan import RadarScan
 from ..se2 import invert, se2, to_xyyaw, turn_frame
+from . import stream_time
 from .arguments import config_number, stream_timestamp
 from .centring import MAX_TURN_RAD, next_turn, uncentre
 from .estimate import BRIDGED, DEGENERATE, Estimate, PreparedSweep, Trajectory, window_covariance  # noqa: F401
@@ -314,21 +315,11 @@ class RadarOdometer:
         """`StreamError` unless ``ts`` may follow the stream (resets it on a gap with
         ``on_gap="reset"``); True when ``ts`` starts a new stream."""
         if self._stamps:
-            dt_s = (ts - self._stamps[-1]) * 1e-6
-            if dt_s <= 0:
-                raise StreamError(
-                    f"{source}: timestamp {ts} µs does not increase (previous sweep {self._stamps[-1]} µs); "
-                    "sweeps must come in time order — call reset() to start a new stream"
-                )
+            dt_s = stream_time.interval_s(ts, self._stamps[-1], source)
             if self.max_gap_s is not None and dt_s > self.max_gap_s:
-                if self.on_gap == "reset":
-                    self._reset()
-                else:
-                    raise StreamError(
-                        f"{source}: {dt_s:.3f} s since the previous sweep exceeds max_gap_s={self.max_gap_s} s; "
-                        "odometry cannot bridge it — call reset() to start a new stream "
-                        "(or use on_gap='reset')"
-                    )
+                if self.on_gap != "reset":
+                    raise stream_time.beyond_max_gap(source, dt_s, self.max_gap_s)
+                self._reset()
         return not self._stamps
 
     def _step(self, scan: RadarScan, odometry, prepared: PreparedSweep | None = None) -> Estimate | None:
@@ -378,17 +369,8 @@ class RadarOdometer:
 
     # --- pieces ---------------------------------------------------------------------------
     def _check_range_scale(self, scan: RadarScan, first: bool) -> None:
-        """`StreamError` where a stream's range bins change size or origin: a radar does not change
-        them mid-recording, so the reader's settings are wrong, and matching across the change would
-        read a scale error as motion."""
-        scale = (float(scan.range_resolution_m), float(scan.range_offset_m))
-        if first or self._range_scale is None:
-            self._range_scale = scale
-        elif not np.allclose(scale, self._range_scale, rtol=1e-6, atol=1e-9):
-            raise StreamError(
-                f"{scan.source}: range bins of {scale[0]} m from {scale[1]} m, but this stream's are "
-                f"{self._range_scale[0]} m from {self._range_scale[1]} m; a radar does not change them mid-recording "
-                "— check the reader's range resolution, or call reset() to start a new stream")
+        """`StreamError` where the stream's range bins change (`stream_time.range_bins`)."""
+        self._range_scale = stream_time.range_bins(scan, None if first else self._range_scale)
 
     def _new_segment(self, scan: RadarScan, prepared, problem, ts: int) -> Estimate:
         """After a stamp jump beyond `NEW_SEGMENT_GAP_S`: the motion over it is unknown, so the sweep
