@@ -90,6 +90,7 @@ from ..errors import ConfigError, ModelMismatchError, StreamError
 from ..onnx_model import OnnxModel
 from ..scan import RadarScan
 from ..se2 import invert, se2, to_xyyaw, turn_frame
+from . import gaps
 from .centring import MAX_TURN_RAD, next_turn, uncentre
 from .gaps import GAP, NEW_SEGMENT, NEW_SEGMENT_GAP_S, SweepPeriod, compose_residual
 from .motion_prior import GATED, PRIOR_DOMINATED, ExternalOdometry, MotionPrior, MotionPriorConfig
@@ -466,7 +467,8 @@ class RadarOdometer:
         out = self._match(scan, x, ts, twist)
         if out is None:
             return self._degenerate("nonfinite", ts, dt_s, odo_rel, flags)
-        pose_ref, cov, new_ref, new_turn = out
+        pose_ref, cov, new_ref, new_turn = out[:4]
+        flags |= out[4] if len(out) > 4 else set()  # a gap crossing's verdict (`_match`)
         return self._accept(pose_ref, cov, new_ref, ts, dt_s, odo_rel, flags, ref_turn=new_turn)
 
     # --- pieces ---------------------------------------------------------------------------
@@ -547,8 +549,11 @@ class RadarOdometer:
         ref_ts = self._stamps[self._ref_index]
         interval_s = (ts - ref_ts) * 1e-6
         pred = None
-        if self._movable and self._period.is_gap(interval_s):
-            pred = self._prior.predict(interval_s, self._lead_s(ref_ts))
+        if self._movable and self._period.is_gap(interval_s) and self._prior.ready:
+            # the last velocity held as a constant twist over the gap (an arc), its covariance grown with it
+            pred = gaps.crossing_prior(self._prior.velocity * self._prior.interval_s,
+                                  self._prior.velocity_covariance * self._prior.interval_s ** 2,
+                                  self._prior.interval_s, interval_s, self._lead_s(ref_ts))
         if pred is None:
             if self.centre_yaw:
                 out = self._match_centred(scan, x, twist, interval_s, ref_ts)
@@ -566,18 +571,28 @@ class RadarOdometer:
         # the reference was drawn turned by a_ref: draw the new sweep in R(a_ref)'s view of the prediction
         a_ref = self._ref_turn
         turned = to_xyyaw(se2(0.0, 0.0, -a_ref) @ se2(*predicted))
-        frame = to_xyyaw(invert(se2(*turned)))
-        moved = self._sweep_input(scan, SweepMotion(twist=twist, frame_pose=tuple(frame)))
-        out = self._run_pair(moved, keep_reference=True)
-        if out is None:
+        p = self.profile
+        window_m = p.translation_cells * p.resolution_m
+        crossed, finite = [], False
+        for centre in gaps.crossing_centres(turned, window_m, p.rotation_range_rad):
+            frame = to_xyyaw(invert(se2(*centre)))
+            moved = self._sweep_input(scan, SweepMotion(twist=twist, frame_pose=tuple(frame)))
+            out = self._run_pair(moved, keep_reference=True)
+            finite |= out is not None
+            if out is None or gaps.at_window_edge(out[0], window_m, p.rotation_range_rad):
+                continue  # a peak on the window's edge measured nothing inside it
+            pose, cov = uncentre(*compose_residual(out[0], out[1], centre), a_ref, 0.0)
+            crossed.append(turn_frame(pose, cov, mount))
+        if not finite:
             return None
-        residual, residual_cov, _ = out
-        pose, cov = uncentre(*compose_residual(residual, residual_cov, turned), a_ref, 0.0)
-        pose, cov = turn_frame(pose, cov, mount)
         new_ref = x if self.info.form == "pair" else self._run_first(x)
         if not np.all(np.isfinite(new_ref)):
             return None
-        return pose, cov, new_ref, 0.0
+        agreed = gaps.consensus([c[0] for c in crossed], [c[1] for c in crossed], *gaps.agreement(p), prior=pred)
+        if agreed is None or gaps.crossing_d2(agreed[0], agreed[1], *pred) > self._prior.config.gate_d2:
+            # no centre agreed, or they agree on a motion the gap's prior rules out: keep the prediction
+            return pred[0], pred[1], new_ref, 0.0, {GATED, PRIOR_DOMINATED}
+        return agreed[0], agreed[1], new_ref, 0.0
 
     def _match_centred(self, scan: RadarScan, x: np.ndarray, twist, interval_s: float, ref_ts: int):
         """(pose in the radar's frame, cov, new reference, its turn) with the new sweep drawn turned
