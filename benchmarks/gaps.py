@@ -4,6 +4,7 @@ tightening turn and across speed changes?
     python benchmarks/gaps.py                                   # both shipped models; ≈ 3 min on 2 cores
     python benchmarks/gaps.py --models cart-0.4 --gaps 6 --cases bend,turn-in --seeds 10000-10003
     python benchmarks/gaps.py --markdown gaps-table.md
+    python benchmarks/gaps.py --cause --models cart-0.4 --seeds 10001   # why a crossing fails; ≈ 1 min
 
 Every model runs as `radar_odom.RadarOdometer` runs it (its defaults). Each crossing is a short
 stream: ``--lead`` sweeps before the gap (so the period and the velocity are known), then the
@@ -18,6 +19,10 @@ same interval. Cases (``--cases``), every world simulated (`radar_odom.sim`) fro
   3°/sweep at 6.1 m/s), so the constant-velocity prediction is short of the turn;
 * ``speed``: the simulator's own urban drives (no test hooks), gaps placed where the speed
   changes by at least 1 m/s over the gap (braking for, and accelerating out of, junctions).
+
+``--cause`` prints instead, for the ``turn-in`` drive's 6-sweep gaps, what one graph match reads with
+the window centred on the *true* pose (the best any prediction could do) and on the constant-
+velocity prediction, against what the odometer's crossing gives.
 
 Per model, case and gap length: the crossing error (translation m, yaw °), median and max; how
 many crossings were flagged ``gated`` (the match not taken); and the median d² of the crossing's
@@ -159,6 +164,50 @@ def cross(model: str, c: Crossing) -> dict:
             "gated": "gated" in e.flags, "truth_yaw": math.degrees(c.truth[2]), "flags": sorted(e.flags)}
 
 
+def single_match_error(model: str, ref_scan, new_scan, centre, truth) -> tuple[float, float]:
+    """(translation m, yaw °) error of one graph match of ``new_scan`` against ``ref_scan`` with the
+    window centred on ``centre`` (the new sweep drawn in that frame), composed back."""
+    from radar_odom.odometry.gaps import compose_residual
+    from radar_odom.odometry.sweep_input import SweepMotion, graph_input
+    from radar_odom.onnx_model import OnnxModel
+    from radar_odom.se2 import invert, se2, to_xyyaw, wrap_angle
+
+    m = OnnxModel(model)
+    i0, i1 = m.info.inputs[:2]
+    zero = np.zeros(m.info.state_shape, dtype=np.float32)
+    state = m.run({i0: graph_input(ref_scan, m.info), i1: zero})["state"]
+    moved = graph_input(new_scan, m.info, SweepMotion(frame_pose=tuple(to_xyyaw(invert(se2(*centre))))))
+    out = m.run({i0: moved, i1: state})
+    pose, _ = compose_residual(np.asarray(out["pose"], dtype=np.float64).reshape(3), np.eye(3), centre)
+    err = pose - truth
+    return float(np.hypot(err[0], err[1])), abs(math.degrees(float(wrap_angle(err[2]))))
+
+
+def cause(models: dict, seeds: list[int], lead: int) -> list[str]:
+    """The ``--cause`` table: the turn-in drive's 6-sweep gaps, one match centred on the truth or the
+    constant-velocity (chord-scaled) prediction, against the odometer's crossing."""
+    lines = ["| model | seed | sweeps before the gap | truth: x m, y m, yaw ° | one match centred on the truth: "
+             "m, ° | one match on the CV prediction: m, ° | the odometer's crossing: m, ° (flags) |",
+             "|---|---:|---:|---|---|---|---|"]
+    from radar_odom.se2 import relative_from_absolute
+
+    for seed in seeds:
+        scans, poses = _hooked_drive(seed, lead + 16 + 8, 6.1, 3.0, ramp_m=30.0)
+        rel = relative_from_absolute(poses)
+        for before in range(lead, lead + 12):
+            c = _crossing(case="turn-in", seed=seed, scans=scans, poses=poses, before=before, gap=6, lead=lead)
+            cv = rel[before - 1] * 7.0  # the previous step scaled over 7 periods, as the crossing predicted before
+            for name, path in models.items():
+                t = single_match_error(path, scans[before], scans[before + 7], c.truth, c.truth)
+                p = single_match_error(path, scans[before], scans[before + 7], cv, c.truth)
+                r = cross(path, c)
+                lines.append(f"| {name} | {seed} | {before} | {c.truth[0]:.2f}, {c.truth[1]:.2f}, "
+                             f"{math.degrees(c.truth[2]):.1f} | {t[0]:.2f}, {t[1]:.2f} | {p[0]:.2f}, {p[1]:.2f} | "
+                             f"{r['t']:.2f}, {r['yaw']:.2f} ({', '.join(r['flags'])}) |")
+                print(lines[-1], flush=True)
+    return lines
+
+
 def table(results: dict) -> list[str]:
     lines = ["| model | case | gap (sweeps) | crossings | |truth yaw| ° | translation error m: median / max | "
              "yaw error °: median / max | gated | median d² |", "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
@@ -182,6 +231,7 @@ def main(argv=None) -> int:
     ap.add_argument("--placements", type=int, default=3, help="gaps per case, seed and length (default: %(default)s)")
     ap.add_argument("--lead", type=int, default=5, help="sweeps before each gap (default: %(default)s)")
     ap.add_argument("--markdown", type=Path, default=None, help="write the table here too")
+    ap.add_argument("--cause", action="store_true", help="the turn-in drive's single matches instead (see above)")
     args = ap.parse_args(argv)
 
     from radar_odom import pretrained
@@ -195,6 +245,11 @@ def main(argv=None) -> int:
     models = {m: (m if m.endswith(".onnx") else pretrained(m)) for m in args.models}
     print(f"seeds {args.seeds}; cases {args.cases}; gaps {args.gaps}; placements {args.placements}", flush=True)
     t0 = time.time()
+    if args.cause:
+        lines = cause(models, seeds, args.lead)
+        if args.markdown:
+            args.markdown.write_text("\n".join(lines) + "\n")
+        return 0
     todo = [c for case in args.cases.split(",") for s in seeds for c in crossings(case, s, gaps, args.placements,
                                                                                    args.lead)]
     print(f"{len(todo)} crossings simulated in {time.time() - t0:.0f} s", flush=True)

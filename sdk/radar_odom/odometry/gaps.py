@@ -16,10 +16,12 @@ arc, not the chord of one period scaled up (in a steady 13° bend the scaled cho
 sweep ~0.6 m off to the outside of the turn). Its covariance grows with the gap: the velocity's
 own, scaled, plus what sustained accelerations of a road vehicle do over the gap
 (`GAP_ACCEL_STD`). The graph matches the new sweep from five window centres around the prediction
-(`crossing_centres`); a match whose residual lies at the edge of the search window is dropped
-(`at_window_edge`: a peak clipped by the window, nothing found inside it), and the crossing is
-taken only where at least two centres agree on the pose (`consensus`; of several such groups, the
-one nearest the gap's prior) and that pose lies within the χ² gate of the prior (`crossing_d2`).
+(`crossing_centres`), and once more centred on each sharp reading it gave (`is_sharp`: a true peak
+is found again where it is looked for); a match whose residual lies at the edge of the search
+window is dropped (`at_window_edge`: a peak clipped by the window, nothing found inside it), and
+the crossing is taken only where at least two of these matches agree on the pose (`consensus`;
+the largest such group, of equal ones the nearest the gap's prior) and that pose lies within the
+χ² gate of the prior (`crossing_d2`).
 Otherwise the odometer keeps the prediction with the prior's covariance, flagged ``"gated"``. Why
 a single match can be wrong, measured: docs/gaps.md.
 """
@@ -59,8 +61,8 @@ CONSENSUS_M = 0.5
 CONSENSUS_RAD = math.radians(1.0)
 CONSENSUS_COUNT = 2
 # A crossing counts toward the consensus only where the graph is sure of it within this many grid
-# cells (translation σ): the wrong peaks of docs/gaps.md spread 0.9–3 m along the road, the right
-# ones 0.3–0.5 m (cart-0.4, a 6-sweep gap in a tightening turn).
+# cells (translation σ; 0.8 m for cart-0.4): the wrong peaks of a tightening turn (docs/gaps.md)
+# spread 0.9–4.6 m along the road, the right ones mostly 0.3–0.5 m (4 cells let wrong pairs in).
 SHARP_CELLS = 2.0
 # A residual beyond this fraction of the search window's half-width (translation, each axis) or
 # of its yaw range sits on the window's edge: the softmax read-out of a peak outside the window.
@@ -187,23 +189,31 @@ def agreement(profile) -> tuple[float, float, float]:
     return max(CONSENSUS_M, cell), max(CONSENSUS_RAD, 2.0 * float(profile.rotation_step_rad)), SHARP_CELLS * cell
 
 
+def is_sharp(cov, max_sd_m: float) -> bool:
+    """Whether a match's translation σ (the larger of x and y, from its 3×3 ``cov``) is within ``max_sd_m``."""
+    c = np.asarray(cov, dtype=np.float64).reshape(3, 3)
+    return math.sqrt(max(c[0, 0], c[1, 1], 0.0)) <= float(max_sd_m)
+
+
 def consensus(poses, covariances, tol_m: float = CONSENSUS_M, tol_rad: float = CONSENSUS_RAD,
               max_sd_m: float = math.inf, min_count: int = CONSENSUS_COUNT, prior=None):
-    """(pose float64[3], covariance float64[3, 3], members) of the largest group of crossings that
-    agree, or None where no ``min_count`` of them do.
+    """(pose float64[3], covariance float64[3, 3], members) of a group of crossings that agree, or
+    None where no ``min_count`` of them do.
 
     Only sharp crossings count: those whose translation σ (the larger of x and y) is within
     ``max_sd_m`` (a peak spread along the road is the graph saying it does not know). A crossing's
-    group: every counted crossing within ``tol_m`` (translation) and ``tol_rad`` (yaw) of it. The
-    largest group wins; between groups of one size, the one nearest ``prior`` ((pose, covariance),
-    `crossing_d2`), or without a prior the earlier. The pose is the group's first member's (the
+    group: every counted crossing within ``tol_m`` (translation) and ``tol_rad`` (yaw) of it. Of the
+    groups of at least ``min_count`` the largest wins; of equal ones, the likeliest under ``prior``
+    ((pose, covariance): the gap's prior, its covariance alone), or without a prior the earlier.
+    (Ranking every group by the prior instead let wrong pairs near it win: measured in docs/gaps.md.)
+    The pose is the group's first member's (the
     centres come nearest the prediction first, and a match is pulled toward the centre it was drawn
     at: docs/yaw-precision.md), its covariance that member's plus the group's spread about it (the
     members match the same two sweeps: their errors are not independent, so no 1/n).
     """
     p = [np.asarray(x, dtype=np.float64).reshape(3) for x in poses]
     c = [np.asarray(x, dtype=np.float64).reshape(3, 3) for x in covariances]
-    sharp = [j for j in range(len(p)) if math.sqrt(max(c[j][0, 0], c[j][1, 1], 0.0)) <= max_sd_m]
+    sharp = [j for j in range(len(p)) if is_sharp(c[j], max_sd_m)]
     groups = []
     for i in sharp:
         g = tuple(j for j in sharp if math.hypot(p[i][0] - p[j][0], p[i][1] - p[j][1]) <= tol_m
@@ -214,9 +224,10 @@ def consensus(poses, covariances, tol_m: float = CONSENSUS_M, tol_rad: float = C
         return None
     means = [_group_mean(p, c, g) for g in groups]
 
-    def rank(k):
-        near = crossing_d2(*means[k], *prior) if prior is not None else float(k)
-        return (-len(groups[k]), near)
+
+    def rank(k):  # the largest group; of equal ones the likeliest under the prior's covariance alone
+        near = crossing_d2(means[k][0], np.zeros((3, 3)), *prior) if prior is not None else float(k)
+        return -len(groups[k]), near
 
     best = min(range(len(groups)), key=rank)
     return (*means[best], list(groups[best]))

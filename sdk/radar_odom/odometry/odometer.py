@@ -552,8 +552,8 @@ class RadarOdometer:
         if self._movable and self._period.is_gap(interval_s) and self._prior.ready:
             # the last velocity held as a constant twist over the gap (an arc), its covariance grown with it
             pred = gaps.crossing_prior(self._prior.velocity * self._prior.interval_s,
-                                  self._prior.velocity_covariance * self._prior.interval_s ** 2,
-                                  self._prior.interval_s, interval_s, self._lead_s(ref_ts))
+                                       self._prior.velocity_covariance * self._prior.interval_s ** 2,
+                                       self._prior.interval_s, interval_s, self._lead_s(ref_ts))
         if pred is None:
             if self.centre_yaw:
                 out = self._match_centred(scan, x, twist, interval_s, ref_ts)
@@ -573,22 +573,32 @@ class RadarOdometer:
         turned = to_xyyaw(se2(0.0, 0.0, -a_ref) @ se2(*predicted))
         p = self.profile
         window_m = p.translation_cells * p.resolution_m
-        crossed, finite = [], False
-        for centre in gaps.crossing_centres(turned, window_m, p.rotation_range_rad):
+        tol_m, tol_rad, sharp_m = gaps.agreement(p)
+        finite = False
+
+        def match_at(centre):
+            # (pose, cov) in the reference's drawn frame of one match with the window centred on
+            # ``centre``; None where not finite or on the window's edge (it measured nothing inside)
+            nonlocal finite
             frame = to_xyyaw(invert(se2(*centre)))
-            moved = self._sweep_input(scan, SweepMotion(twist=twist, frame_pose=tuple(frame)))
-            out = self._run_pair(moved, keep_reference=True)
+            out = self._run_pair(self._sweep_input(scan, SweepMotion(twist=twist, frame_pose=tuple(frame))),
+                                 keep_reference=True)
             finite |= out is not None
             if out is None or gaps.at_window_edge(out[0], window_m, p.rotation_range_rad):
-                continue  # a peak on the window's edge measured nothing inside it
-            pose, cov = uncentre(*compose_residual(out[0], out[1], centre), a_ref, 0.0)
-            crossed.append(turn_frame(pose, cov, mount))
+                return None
+            return compose_residual(out[0], out[1], centre)
+
+        found = [m for m in map(match_at, gaps.crossing_centres(turned, window_m, p.rotation_range_rad)) if m]
+        # each sharp reading matched again centred on itself: a true peak is found where it is looked
+        # for (docs/gaps.md); the refined readings come first, so a group's pose is one drawn at itself
+        refined = [m for m in map(match_at, [f[0] for f in found if gaps.is_sharp(f[1], sharp_m)]) if m]
+        crossed = [turn_frame(*uncentre(*m, a_ref, 0.0), mount) for m in refined + found]
         if not finite:
             return None
         new_ref = x if self.info.form == "pair" else self._run_first(x)
         if not np.all(np.isfinite(new_ref)):
             return None
-        agreed = gaps.consensus([c[0] for c in crossed], [c[1] for c in crossed], *gaps.agreement(p), prior=pred)
+        agreed = gaps.consensus([c[0] for c in crossed], [c[1] for c in crossed], tol_m, tol_rad, sharp_m, prior=pred)
         if agreed is None or gaps.crossing_d2(agreed[0], agreed[1], *pred) > self._prior.config.gate_d2:
             # no centre agreed, or they agree on a motion the gap's prior rules out: keep the prediction
             return pred[0], pred[1], new_ref, 0.0, {GATED, PRIOR_DOMINATED}
