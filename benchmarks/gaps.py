@@ -21,8 +21,9 @@ same interval. Cases (``--cases``), every world simulated (`radar_odom.sim`) fro
   changes by at least 1 m/s over the gap (braking for, and accelerating out of, junctions).
 
 ``--cause`` prints instead, for the ``turn-in`` drive's 6-sweep gaps, what one graph match reads with
-the window centred on the *true* pose (the best any prediction could do) and on the constant-
-velocity prediction, against what the odometer's crossing gives.
+the window centred on the *true* pose (the best any prediction could do) and on the true last
+step scaled over the gap (a perfect constant-velocity prediction), against what the odometer's
+crossing gives.
 
 Per model, case and gap length: the crossing error (translation m, yaw °), median and max; how
 many crossings were flagged ``gated`` (the match not taken); and the median d² of the crossing's
@@ -184,10 +185,11 @@ def single_match_error(model: str, ref_scan, new_scan, centre, truth) -> tuple[f
 
 
 def cause(models: dict, seeds: list[int], lead: int) -> list[str]:
-    """The ``--cause`` table: the turn-in drive's 6-sweep gaps, one match centred on the truth or the
-    constant-velocity (chord-scaled) prediction, against the odometer's crossing."""
+    """The ``--cause`` table: the turn-in drive's 6-sweep gaps, one match centred on the truth or on
+    the true last step scaled over the gap (chord-scaled, as the crossing predicted before), against
+    the odometer's crossing."""
     lines = ["| model | seed | sweeps before the gap | truth: x m, y m, yaw ° | one match centred on the truth: "
-             "m, ° | one match on the CV prediction: m, ° | the odometer's crossing: m, ° (flags) |",
+             "m, ° | one match centred on the true last step × 7: m, ° | the odometer's crossing: m, ° (flags) |",
              "|---|---:|---:|---|---|---|---|"]
     from radar_odom.se2 import relative_from_absolute
 
@@ -196,7 +198,7 @@ def cause(models: dict, seeds: list[int], lead: int) -> list[str]:
         rel = relative_from_absolute(poses)
         for before in range(lead, lead + 12):
             c = _crossing(case="turn-in", seed=seed, scans=scans, poses=poses, before=before, gap=6, lead=lead)
-            cv = rel[before - 1] * 7.0  # the previous step scaled over 7 periods, as the crossing predicted before
+            cv = rel[before - 1] * 7.0  # the true previous step scaled over 7 periods: a perfect CV prediction
             for name, path in models.items():
                 t = single_match_error(path, scans[before], scans[before + 7], c.truth, c.truth)
                 p = single_match_error(path, scans[before], scans[before + 7], cv, c.truth)
@@ -209,7 +211,7 @@ def cause(models: dict, seeds: list[int], lead: int) -> list[str]:
 
 
 def table(results: dict) -> list[str]:
-    lines = ["| model | case | gap (sweeps) | crossings | |truth yaw| ° | translation error m: median / max | "
+    lines = ["| model | case | gap (sweeps) | crossings | truth yaw (abs) ° | translation error m: median / max | "
              "yaw error °: median / max | gated | median d² |", "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
     for (model, case, gap), rows in results.items():
         t = np.array([r["t"] for r in rows])

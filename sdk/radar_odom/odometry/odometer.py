@@ -18,9 +18,13 @@ Faults, and what the odometer does about them (never a NaN, never a broken traje
   longer than 1.5 nominal periods (the median of the last intervals) is a gap, and its
   estimate is flagged ``"gap"``. Where the reference sweep is that far back and the motion
   prior can predict the motion over the interval, the new sweep is drawn in the predicted frame
-  (Cartesian models), the graph measures the residual and the pose is the residual composed
-  with the prediction, its covariance carried through (`radar_odom.odometry.gaps`): the ±window of the
-  search is centred on the prediction instead of on standing still. With ``max_gap_s`` set, a
+  (Cartesian models; the last velocity held as an arc), the graph measures the residual and the
+  pose is the residual composed with the prediction, its covariance carried through
+  (`radar_odom.odometry.gaps`): the ±window of the search is centred on the prediction instead of
+  on standing still. The crossing is matched from five centres around the prediction (and again
+  on each sharp reading) and taken only where two readings agree within the gap's prior; else the
+  estimate is the prediction with a covariance that grows with the gap, flagged ``"gated"``
+  (docs/gaps.md). With ``max_gap_s`` set, a
   longer gap is a hard stop instead: ``on_gap="raise"`` (default) raises `StreamError` (call
   `reset()` and go on); ``on_gap="reset"`` resets the stream itself, so that sweep starts a
   new trajectory at identity and `step` returns None.
