@@ -15,7 +15,7 @@ The prediction over a gap (`crossing_prior`) is the last velocity held as a cons
 arc, not the chord of one period scaled up (in a steady 13° bend the scaled chord puts the far
 sweep ~0.6 m off to the outside of the turn). Its covariance grows with the gap: the velocity's
 own, scaled, plus what sustained accelerations of a road vehicle do over the gap
-(`GAP_ACCEL_STD`). The graph matches the new sweep from five window centres around the prediction
+(`GAP_ACCEL_STD`). The graph matches the new sweep from nine window centres around the prediction
 (`crossing_centres`), and once more centred on each sharp reading it gave (`is_sharp`: a true peak
 is found again where it is looked for); a match whose residual lies at the edge of the search
 window is dropped (`at_window_edge`: a peak clipped by the window, nothing found inside it), and
@@ -49,9 +49,10 @@ _MIN_INTERVALS = 3  # intervals seen before the period is trusted
 # ≤ 30 °/s within ~2 s.
 GAP_ACCEL_STD = (1.5, 1.0, math.radians(8.0))
 # The crossing is matched from several window centres around the prediction: the prediction itself,
-# then moved forward/back by this fraction of the window's half-width and turned either way by this
-# fraction of the yaw range. A true peak is found from most of them and composes to the same pose; a
-# peak at the window's edge, or one the centring happened to fall near, moves with the centre.
+# then moved forward/back by this fraction of the window's half-width, and turned either way by 1, 2
+# and 3 times this fraction of the yaw range (5°, 10°, 15° for the shipped ±15°). A true peak is
+# found from several of them and composes to the same pose; a peak at the window's edge, or one the
+# centring happened to fall near, moves with the centre.
 HYPOTHESIS_SHIFT_FRACTION = 0.35
 HYPOTHESIS_TURN_FRACTION = 0.33
 # Crossings agree when their poses lie within these of each other (or within one grid cell and two
@@ -171,13 +172,15 @@ def crossing_d2(pose, cov, prior_pose, prior_cov) -> float:
 
 def crossing_centres(predicted, window_m: float, yaw_range_rad: float) -> list[np.ndarray]:
     """float64[3] poses to centre the search window on, the prediction first: ``P``, then ``P``
-    moved along its x by ± `HYPOTHESIS_SHIFT_FRACTION` × ``window_m`` and turned by ±
-    `HYPOTHESIS_TURN_FRACTION` × ``yaw_range_rad`` (each an offset in the predicted frame: ``P ∘ δ``)."""
+    moved along its x by ± `HYPOTHESIS_SHIFT_FRACTION` × ``window_m``, then turned by ±1, ±2 and ±3
+    × `HYPOTHESIS_TURN_FRACTION` × ``yaw_range_rad`` (each an offset in the predicted frame:
+    ``P ∘ δ``): nine centres, reaching twice the graph's yaw range either way (a junction turn that
+    starts in the gap leaves a constant-velocity prediction far behind)."""
     from ..se2 import se2, to_xyyaw
 
     d, a = HYPOTHESIS_SHIFT_FRACTION * float(window_m), HYPOTHESIS_TURN_FRACTION * float(yaw_range_rad)
     p = se2(*np.asarray(predicted, dtype=np.float64).reshape(3))
-    offsets = ((0.0, 0.0, 0.0), (d, 0.0, 0.0), (-d, 0.0, 0.0), (0.0, 0.0, a), (0.0, 0.0, -a))
+    offsets = ((0.0, 0.0, 0.0), (d, 0.0, 0.0), (-d, 0.0, 0.0)) + tuple((0.0, 0.0, k * a) for k in (1, -1, 2, -2, 3, -3))
     return [to_xyyaw(p @ se2(*o)) for o in offsets]
 
 

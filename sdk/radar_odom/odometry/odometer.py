@@ -21,7 +21,7 @@ Faults, and what the odometer does about them (never a NaN, never a broken traje
   (Cartesian models; the last velocity held as an arc), the graph measures the residual and the
   pose is the residual composed with the prediction, its covariance carried through
   (`radar_odom.odometry.gaps`): the ±window of the search is centred on the prediction instead of
-  on standing still. The crossing is matched from five centres around the prediction (and again
+  on standing still. The crossing is matched from nine centres around the prediction (and again
   on each sharp reading) and taken only where two readings agree within the gap's prior; else the
   estimate is the prediction with a covariance that grows with the gap, flagged ``"gated"``
   (docs/gaps.md). With ``max_gap_s`` set, a
