@@ -45,3 +45,24 @@ def test_wrap_angle_range():
     a = S.wrap_angle(np.array([np.pi, -np.pi, 3 * np.pi, 0.1, -7.0]))
     assert np.all(a <= np.pi) and np.all(a > -np.pi)
     np.testing.assert_allclose(np.cos(a), np.cos([np.pi, -np.pi, 3 * np.pi, 0.1, -7.0]), atol=1e-12)
+
+
+@given(finite, finite, angle)
+def test_se2_exp_inverts_se2_log(x, y, yaw):
+    back = S.se2_exp(S.se2_log([x, y, yaw]))
+    np.testing.assert_allclose(S.se2(*back), S.se2(x, y, yaw), atol=1e-9)
+
+
+@given(st.floats(-5, 5, allow_nan=False), st.floats(-1, 1, allow_nan=False), st.floats(-0.3, 0.3, allow_nan=False),
+       st.integers(1, 9))
+def test_se2_exp_of_k_times_log_repeats_the_pose(x, y, yaw, k):
+    # a constant twist held k periods: the one-period pose composed k times (a circular arc)
+    out = S.se2_exp(k * S.se2_log([x, y, yaw]))
+    np.testing.assert_allclose(S.se2(*out), np.linalg.matrix_power(S.se2(x, y, yaw), k), atol=1e-9)
+
+
+def test_se2_exp_is_an_arc_and_a_line_without_a_turn():
+    # a quarter circle of radius 10 m turning right (+yaw): ends 10 m ahead, 10 m to the right
+    np.testing.assert_allclose(S.se2_exp([10 * np.pi / 2, 0.0, np.pi / 2]), [10.0, 10.0, np.pi / 2], atol=1e-12)
+    np.testing.assert_allclose(S.se2_exp([3.0, -1.0, 0.0]), [3.0, -1.0, 0.0], atol=1e-15)
+    np.testing.assert_allclose(S.se2_log([3.0, -1.0, 1e-7]), [3.0, -1.0, 1e-7], atol=1e-6)

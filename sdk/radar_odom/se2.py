@@ -96,3 +96,31 @@ def relative_from_absolute(abs_poses: np.ndarray) -> np.ndarray:
     """float64[N-1, 3] Oxford relative poses between consecutive absolute [N, 3, 3] poses."""
     a = np.asarray(abs_poses, dtype=np.float64)
     return to_xyyaw(invert(a[:-1]) @ a[1:])
+
+
+def se2_log(pose_xyyaw) -> np.ndarray:
+    """float64[3] twist (u m, v m, θ rad) whose constant-rate motion for unit time ends at ``pose``.
+
+    The inverse of `se2_exp`: the constant body velocity (forward u, sideways v, turn θ, all per
+    unit time) that carries the frame along a circular arc to the pose ``(x, y, yaw)`` (Oxford
+    convention). ``θ = yaw`` (wrapped to (−π, π]); ``(u, v) = V(θ)⁻¹ (x, y)`` with
+    ``V(θ) = [[sin θ/θ, −(1 − cos θ)/θ], [(1 − cos θ)/θ, sin θ/θ]]`` (the identity at θ = 0).
+    """
+    x, y, yaw = (float(v) for v in np.asarray(pose_xyyaw, dtype=np.float64).reshape(3))
+    th = float(wrap_angle(yaw))
+    half = 0.5 * th
+    # (θ/2)·cot(θ/2), stable near 0 (series to θ⁴: error < 1e-12 for |θ| < 1e-3)
+    a = 1.0 - th * th / 12.0 if abs(th) < 1e-3 else half / np.tan(half)
+    return np.array([a * x + half * y, -half * x + a * y, th])
+
+
+def se2_exp(twist) -> np.ndarray:
+    """float64[3] pose (x m, y m, yaw rad) reached by the constant twist ``(u, v, θ)`` over unit time:
+    a circular arc (a straight line when θ = 0); ``yaw = θ`` wrapped, ``(x, y) = V(θ) (u, v)`` (see
+    `se2_log`). ``se2_exp(k · se2_log(p))`` is ``p`` repeated k times, for any real k."""
+    u, v, th = (float(t) for t in np.asarray(twist, dtype=np.float64).reshape(3))
+    if abs(th) < 1e-4:  # series: error < 1e-13 relative
+        s, c = 1.0 - th * th / 6.0, 0.5 * th - th**3 / 24.0
+    else:
+        s, c = np.sin(th) / th, (1.0 - np.cos(th)) / th
+    return np.array([s * u - c * v, c * u + s * v, float(wrap_angle(th))])

@@ -12,6 +12,20 @@ carried through that composition (P is not uncertain there: it only placed the w
 fitted time base, `radar_odom.io.timebase`), else the median of the recent intervals, is the
 nominal period, and an interval beyond ``gap_factor`` × that is a gap. The median alone fails
 where a recording drops every other sweep for a while: its intervals all read two periods.
+
+The prediction over a gap (`crossing_prior`) is the last velocity held as a constant *twist*: an
+arc, not the chord of one period scaled up (in a steady 13° bend the scaled chord puts the far
+sweep ~0.6 m off to the outside of the turn). Its covariance grows with the gap: the velocity's
+own, scaled, plus what sustained accelerations of a road vehicle do over the gap
+(`GAP_ACCEL_STD`). The graph matches the new sweep from nine window centres around the prediction
+(`crossing_centres`), and once more centred on each sharp reading it gave (`is_sharp`: a true peak
+is found again where it is looked for); a match whose residual lies at the edge of the search
+window is dropped (`at_window_edge`: a peak clipped by the window, nothing found inside it), and
+the crossing is taken only where at least two of these matches agree on the pose (`consensus`;
+the largest such group, of equal ones the nearest the gap's prior) and that pose lies within the
+χ² gate of the prior (`crossing_d2`).
+Otherwise the odometer keeps the prediction with the prior's covariance, flagged ``"gated"``. Why
+a single match can be wrong, measured: docs/gaps.md.
 """
 from __future__ import annotations
 
@@ -19,6 +33,8 @@ import math
 from collections import deque
 
 import numpy as np
+
+from ..se2 import se2_exp, se2_log, wrap_angle
 
 GAP = "gap"  # flag of an estimate whose interval was a gap (see `SweepPeriod`)
 NEW_SEGMENT = "new_segment"  # flag of the first sweep after a stamp jump no prediction can bridge
@@ -28,6 +44,32 @@ NEW_SEGMENT = "new_segment"  # flag of the first sweep after a stamp jump no pre
 NEW_SEGMENT_GAP_S = 10.0
 GAP_FACTOR = 1.5  # an interval above 1.5 nominal periods: at least one sweep is missing
 _MIN_INTERVALS = 3  # intervals seen before the period is trusted
+# 1σ of the accelerations a road vehicle *sustains* over a gap of a second or two: forward (m/s²),
+# sideways (m/s²), yaw (rad/s²). Smaller than the motion prior's per-step figures (4 m/s², 40 °/s²),
+# which cover a jolt within one period; held over 1.75 s those would allow 7 m and 70°. A car
+# brakes or accelerates at 1–2.5 m/s² (the simulator: 1.5 up, 2.5 down) and enters a turn at
+# ≤ 30 °/s within ~2 s.
+GAP_ACCEL_STD = (1.5, 1.0, math.radians(8.0))
+# The crossing is matched from several window centres around the prediction: the prediction itself,
+# then moved forward/back by this fraction of the window's half-width, and turned either way by 1, 2
+# and 3 times this fraction of the yaw range (5°, 10°, 15° for the shipped ±15°). A true peak is
+# found from several of them and composes to the same pose; a peak at the window's edge, or one the
+# centring happened to fall near, moves with the centre.
+HYPOTHESIS_SHIFT_FRACTION = 0.35
+HYPOTHESIS_TURN_FRACTION = 0.33
+# Crossings agree when their poses lie within these of each other (or within one grid cell and two
+# yaw steps, for a coarser grid: `agreement`); a crossing is taken where at least CONSENSUS_COUNT of
+# the centres agree (one centre alone is what failed before: a peak the centring fell near).
+CONSENSUS_M = 0.5
+CONSENSUS_RAD = math.radians(1.0)
+CONSENSUS_COUNT = 2
+# A crossing counts toward the consensus only where the graph is sure of it within this many grid
+# cells (translation σ; 0.8 m for cart-0.4): the wrong peaks of a tightening turn (docs/gaps.md)
+# spread 0.9–4.6 m along the road, the right ones mostly 0.3–0.5 m (4 cells let wrong pairs in).
+SHARP_CELLS = 2.0
+# A residual beyond this fraction of the search window's half-width (translation, each axis) or
+# of its yaw range sits on the window's edge: the softmax read-out of a peak outside the window.
+EDGE_FRACTION = 0.85
 
 
 class SweepPeriod:
@@ -84,4 +126,125 @@ def compose_residual(residual, residual_cov, predicted) -> tuple[np.ndarray, np.
     pose = np.array([mx + c * px - s * py, my + s * px + c * py, yaw])
     jac = np.array([[1.0, 0.0, -s * px - c * py], [0.0, 1.0, c * px - s * py], [0.0, 0.0, 1.0]])
     cov = jac @ np.asarray(residual_cov, dtype=np.float64).reshape(3, 3) @ jac.T
+    return pose, 0.5 * (cov + cov.T)
+
+
+def crossing_prior(step_pose, step_cov, step_s: float, interval_s: float, lead_s: float = 0.0):
+    """(pose float64[3], covariance float64[3, 3]) predicted over a gap of ``interval_s`` seconds.
+
+    Args:
+        step_pose: float[3] (x m, y m, yaw rad) the last measured relative pose, over ``step_s``
+            seconds (the motion prior's velocity times its interval).
+        step_cov: float[3, 3] its covariance.
+        step_s: that pose's interval, s (> 0).
+        interval_s: the gap's interval, s (> 0).
+        lead_s: seconds from the end of the step's interval to the start of the gap's.
+
+    The pose is the step's constant twist held over the gap, ``exp((interval/step) · log(step))``
+    (`radar_odom.se2.se2_exp`): a circular arc. The covariance is the step's scaled by
+    ``k = interval/step`` squared (first order, the arc's Jacobian taken as k·I: the twist's
+    error is what grows) plus ``(σ_a · τ · interval)²`` per component with τ = step/2 + lead +
+    interval/2, the time between the middles of the two intervals (as the motion prior's process
+    noise, `radar_odom.odometry.motion_prior.MotionPriorConfig.process_noise`), σ_a
+    `GAP_ACCEL_STD`. It grows with the gap, about as its square.
+    """
+    step_s, interval_s = float(step_s), float(interval_s)
+    if not (step_s > 0 and interval_s > 0):
+        raise ValueError(f"step_s and interval_s must be positive, got {step_s!r}, {interval_s!r}")
+    k = interval_s / step_s
+    pose = se2_exp(k * se2_log(step_pose))
+    tau = 0.5 * step_s + max(float(lead_s), 0.0) + 0.5 * interval_s
+    q = np.diag((np.asarray(GAP_ACCEL_STD) * tau * interval_s) ** 2)
+    cov = k * k * np.asarray(step_cov, dtype=np.float64).reshape(3, 3) + q
+    return pose, 0.5 * (cov + cov.T)
+
+
+def at_window_edge(residual, window_m: float, yaw_range_rad: float, fraction: float = EDGE_FRACTION) -> bool:
+    """Whether a residual (x m, y m, yaw rad) lies on the search window's edge: |x| or |y| beyond
+    ``fraction`` × ``window_m`` (the ±half-width), or |yaw| beyond ``fraction`` × ``yaw_range_rad``."""
+    r = np.asarray(residual, dtype=np.float64).reshape(3)
+    return bool(max(abs(r[0]), abs(r[1])) > fraction * float(window_m)
+                or abs(float(wrap_angle(r[2]))) > fraction * float(yaw_range_rad))
+
+
+def crossing_d2(pose, cov, prior_pose, prior_cov) -> float:
+    """Innovation d² of a crossing ``pose`` (cov) against the gap's prior: ``rᵀ (C + C_p)⁻¹ r``,
+    r = pose − prior with the yaw wrapped."""
+    r = np.asarray(pose, dtype=np.float64).reshape(3) - np.asarray(prior_pose, dtype=np.float64).reshape(3)
+    r[2] = float(wrap_angle(r[2]))
+    s = np.asarray(cov, dtype=np.float64).reshape(3, 3) + np.asarray(prior_cov, dtype=np.float64).reshape(3, 3)
+    return float(r @ np.linalg.solve(0.5 * (s + s.T), r))
+
+
+def crossing_centres(predicted, window_m: float, yaw_range_rad: float) -> list[np.ndarray]:
+    """float64[3] poses to centre the search window on, the prediction first: ``P``, then ``P``
+    moved along its x by ± `HYPOTHESIS_SHIFT_FRACTION` × ``window_m``, then turned by ±1, ±2 and ±3
+    × `HYPOTHESIS_TURN_FRACTION` × ``yaw_range_rad`` (each an offset in the predicted frame:
+    ``P ∘ δ``): nine centres, reaching twice the graph's yaw range either way (a junction turn that
+    starts in the gap leaves a constant-velocity prediction far behind)."""
+    from ..se2 import se2, to_xyyaw
+
+    d, a = HYPOTHESIS_SHIFT_FRACTION * float(window_m), HYPOTHESIS_TURN_FRACTION * float(yaw_range_rad)
+    p = se2(*np.asarray(predicted, dtype=np.float64).reshape(3))
+    offsets = ((0.0, 0.0, 0.0), (d, 0.0, 0.0), (-d, 0.0, 0.0)) + tuple((0.0, 0.0, k * a) for k in (1, -1, 2, -2, 3, -3))
+    return [to_xyyaw(p @ se2(*o)) for o in offsets]
+
+
+def agreement(profile) -> tuple[float, float, float]:
+    """(m, rad, m) for `consensus` with a model of this `GridProfile`: crossings agree within
+    `CONSENSUS_M` and `CONSENSUS_RAD` (or one grid cell and two yaw steps where those are coarser);
+    a crossing counts where its translation σ is within `SHARP_CELLS` grid cells."""
+    cell = float(profile.resolution_m)
+    return max(CONSENSUS_M, cell), max(CONSENSUS_RAD, 2.0 * float(profile.rotation_step_rad)), SHARP_CELLS * cell
+
+
+def is_sharp(cov, max_sd_m: float) -> bool:
+    """Whether a match's translation σ (the larger of x and y, from its 3×3 ``cov``) is within ``max_sd_m``."""
+    c = np.asarray(cov, dtype=np.float64).reshape(3, 3)
+    return math.sqrt(max(c[0, 0], c[1, 1], 0.0)) <= float(max_sd_m)
+
+
+def consensus(poses, covariances, tol_m: float = CONSENSUS_M, tol_rad: float = CONSENSUS_RAD,
+              max_sd_m: float = math.inf, min_count: int = CONSENSUS_COUNT, prior=None):
+    """(pose float64[3], covariance float64[3, 3], members) of a group of crossings that agree, or
+    None where no ``min_count`` of them do.
+
+    Only sharp crossings count: those whose translation σ (the larger of x and y) is within
+    ``max_sd_m`` (a peak spread along the road is the graph saying it does not know). A crossing's
+    group: every counted crossing within ``tol_m`` (translation) and ``tol_rad`` (yaw) of it. Of the
+    groups of at least ``min_count`` the largest wins; of equal ones, the likeliest under ``prior``
+    ((pose, covariance): the gap's prior, its covariance alone), or without a prior the earlier.
+    (Ranking every group by the prior instead let wrong pairs near it win: measured in docs/gaps.md.)
+    The pose is the group's first member's (the
+    centres come nearest the prediction first, and a match is pulled toward the centre it was drawn
+    at: docs/yaw-precision.md), its covariance that member's plus the group's spread about it (the
+    members match the same two sweeps: their errors are not independent, so no 1/n).
+    """
+    p = [np.asarray(x, dtype=np.float64).reshape(3) for x in poses]
+    c = [np.asarray(x, dtype=np.float64).reshape(3, 3) for x in covariances]
+    sharp = [j for j in range(len(p)) if is_sharp(c[j], max_sd_m)]
+    groups = []
+    for i in sharp:
+        g = tuple(j for j in sharp if math.hypot(p[i][0] - p[j][0], p[i][1] - p[j][1]) <= tol_m
+                  and abs(float(wrap_angle(p[i][2] - p[j][2]))) <= tol_rad)
+        if len(g) >= int(min_count) and g not in groups:
+            groups.append(g)
+    if not groups:
+        return None
+    means = [_group_mean(p, c, g) for g in groups]
+
+
+    def rank(k):  # the largest group; of equal ones the likeliest under the prior's covariance alone
+        near = crossing_d2(means[k][0], np.zeros((3, 3)), *prior) if prior is not None else float(k)
+        return -len(groups[k]), near
+
+    best = min(range(len(groups)), key=rank)
+    return (*means[best], list(groups[best]))
+
+
+def _group_mean(p, covariances, members) -> tuple[np.ndarray, np.ndarray]:
+    pose = p[members[0]].copy()
+    dev = np.array([p[j] for j in members]) - pose
+    dev[:, 2] = wrap_angle(dev[:, 2])
+    cov = np.asarray(covariances[members[0]], dtype=np.float64).reshape(3, 3) + dev.T @ dev / len(members)
     return pose, 0.5 * (cov + cov.T)

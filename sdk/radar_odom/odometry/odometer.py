@@ -18,9 +18,13 @@ Faults, and what the odometer does about them (never a NaN, never a broken traje
   longer than 1.5 nominal periods (the median of the last intervals) is a gap, and its
   estimate is flagged ``"gap"``. Where the reference sweep is that far back and the motion
   prior can predict the motion over the interval, the new sweep is drawn in the predicted frame
-  (Cartesian models), the graph measures the residual and the pose is the residual composed
-  with the prediction, its covariance carried through (`radar_odom.odometry.gaps`): the ±window of the
-  search is centred on the prediction instead of on standing still. With ``max_gap_s`` set, a
+  (Cartesian models; the last velocity held as an arc), the graph measures the residual and the
+  pose is the residual composed with the prediction, its covariance carried through
+  (`radar_odom.odometry.gaps`): the ±window of the search is centred on the prediction instead of
+  on standing still. The crossing is matched from nine centres around the prediction (and again
+  on each sharp reading) and taken only where two readings agree within the gap's prior; else the
+  estimate is the prediction with a covariance that grows with the gap, flagged ``"gated"``
+  (docs/gaps.md). With ``max_gap_s`` set, a
   longer gap is a hard stop instead: ``on_gap="raise"`` (default) raises `StreamError` (call
   `reset()` and go on); ``on_gap="reset"`` resets the stream itself, so that sweep starts a
   new trajectory at identity and `step` returns None.
@@ -93,13 +97,13 @@ from ..errors import ConfigError, ModelMismatchError
 from ..onnx_model import OnnxModel
 from ..scan import RadarScan
 from ..se2 import invert, se2, to_xyyaw, turn_frame
-from . import stream_time
+from . import gaps, stream_time
 from .arguments import config_number, stream_timestamp
 from .centring import MAX_TURN_RAD, next_turn, uncentre
 from .estimate import BRIDGED, DEGENERATE, Estimate, PreparedSweep, Trajectory, window_covariance  # noqa: F401
 from .gaps import GAP, NEW_SEGMENT, NEW_SEGMENT_GAP_S, SweepPeriod, compose_residual
 from .graph_step import GraphStep
-from .motion_prior import GATED, ExternalOdometry, MotionPrior, MotionPriorConfig
+from .motion_prior import GATED, PRIOR_DOMINATED, ExternalOdometry, MotionPrior, MotionPriorConfig
 from .motion_prior import compose as compose_relative
 from .motion_prior import fuse as fuse_estimates
 from .sweep_checks import (  # noqa: F401  (re-exported: their home was here)
@@ -362,7 +366,8 @@ class RadarOdometer:
             out, twist = self._match_deskewed_first(scan, ts, out)
         if out is None:
             return self._degenerate("nonfinite", ts, dt_s, odo_rel, flags)
-        pose_ref, cov, new_ref, new_turn = out
+        pose_ref, cov, new_ref, new_turn = out[:4]
+        flags |= out[4] if len(out) > 4 else set()  # a gap crossing's verdict (`_match`)
         est = self._accept(pose_ref, cov, new_ref, ts, dt_s, odo_rel, flags, ref_turn=new_turn)
         self._keep_reference(scan, twist)
         return est
@@ -480,8 +485,11 @@ class RadarOdometer:
         ref_ts = self._stamps[self._ref_index]
         interval_s = (ts - ref_ts) * 1e-6
         pred = None
-        if self._movable and self._period.is_gap(interval_s):
-            pred = self._prior.predict(interval_s, self._lead_s(ref_ts))
+        if self._movable and self._period.is_gap(interval_s) and self._prior.ready:
+            # the last velocity held as a constant twist over the gap (an arc), its covariance grown with it
+            pred = gaps.crossing_prior(self._prior.velocity * self._prior.interval_s,
+                                       self._prior.velocity_covariance * self._prior.interval_s ** 2,
+                                       self._prior.interval_s, interval_s, self._lead_s(ref_ts))
         if pred is None:
             if self.centre_yaw:
                 out = self._match_centred(scan, x, twist, interval_s, ref_ts)
@@ -499,18 +507,38 @@ class RadarOdometer:
         # the reference was drawn turned by a_ref: draw the new sweep in R(a_ref)'s view of the prediction
         a_ref = self._ref_turn
         turned = to_xyyaw(se2(0.0, 0.0, -a_ref) @ se2(*predicted))
-        frame = to_xyyaw(invert(se2(*turned)))
-        moved = self._sweep_input(scan, SweepMotion(twist=twist, frame_pose=tuple(frame)))
-        out = self._run_pair(moved, keep_reference=True)
-        if out is None:
+        p = self.profile
+        window_m = p.translation_cells * p.resolution_m
+        tol_m, tol_rad, sharp_m = gaps.agreement(p)
+        finite = False
+
+        def match_at(centre):
+            # (pose, cov) in the reference's drawn frame of one match with the window centred on
+            # ``centre``; None where not finite or on the window's edge (it measured nothing inside)
+            nonlocal finite
+            frame = to_xyyaw(invert(se2(*centre)))
+            out = self._run_pair(self._sweep_input(scan, SweepMotion(twist=twist, frame_pose=tuple(frame))),
+                                 keep_reference=True)
+            finite |= out is not None
+            if out is None or gaps.at_window_edge(out[0], window_m, p.rotation_range_rad):
+                return None
+            return compose_residual(out[0], out[1], centre)
+
+        found = [m for m in map(match_at, gaps.crossing_centres(turned, window_m, p.rotation_range_rad)) if m]
+        # each sharp reading matched again centred on itself: a true peak is found where it is looked
+        # for (docs/gaps.md); the refined readings come first, so a group's pose is one drawn at itself
+        refined = [m for m in map(match_at, [f[0] for f in found if gaps.is_sharp(f[1], sharp_m)]) if m]
+        crossed = [turn_frame(*uncentre(*m, a_ref, 0.0), mount) for m in refined + found]
+        if not finite:
             return None
-        residual, residual_cov, _ = out
-        pose, cov = uncentre(*compose_residual(residual, residual_cov, turned), a_ref, 0.0)
-        pose, cov = turn_frame(pose, cov, mount)
         new_ref = x if self.info.form == "pair" else self._run_first(x)
         if not np.all(np.isfinite(new_ref)):
             return None
-        return pose, cov, new_ref, 0.0
+        agreed = gaps.consensus([c[0] for c in crossed], [c[1] for c in crossed], tol_m, tol_rad, sharp_m, prior=pred)
+        if agreed is None or gaps.crossing_d2(agreed[0], agreed[1], *pred) > self._prior.config.gate_d2:
+            # no centre agreed, or they agree on a motion the gap's prior rules out: keep the prediction
+            return pred[0], pred[1], new_ref, 0.0, {GATED, PRIOR_DOMINATED}
+        return agreed[0], agreed[1], new_ref, 0.0
 
     def _match_centred(self, scan: RadarScan, x: np.ndarray, twist, interval_s: float, ref_ts: int):
         """(pose in the radar's frame, cov, new reference, its turn) with the new sweep drawn turned
