@@ -204,6 +204,38 @@ def is_sharp(cov, max_sd_m: float) -> bool:
     return math.sqrt(max(c[0, 0], c[1, 1], 0.0)) <= float(max_sd_m)
 
 
+def crossing_readings(predicted, residual_at, profile) -> list | None:
+    """The gap crossing's readings: (pose float64[3], covariance float64[3, 3]) of the new sweep in the
+    reference's drawn frame, one per match with the window centred on each of `crossing_centres`
+    around ``predicted``, then once more on each sharp one (a true peak is found again where it is
+    looked for; docs/gaps.md), the refined ones first, so a group's pose is one drawn at itself.
+    Matches at the window's edge measured nothing inside it and are left out.
+
+    Args:
+        predicted: float[3] the prediction in the reference's drawn frame.
+        residual_at: ``centre -> (residual, residual_cov) | None``: the graph's match of the new sweep
+            drawn with ``frame_pose = centre⁻¹`` (None where its output is not finite).
+        profile: the model's `GridProfile` (the window and the agreement scales).
+
+    Returns the readings (possibly none), or None where no match at all was finite.
+    """
+    window_m = profile.translation_cells * profile.resolution_m
+    _, _, sharp_m = agreement(profile)
+    finite = False
+
+    def reading(centre):
+        nonlocal finite
+        out = residual_at(centre)
+        finite |= out is not None
+        if out is None or at_window_edge(out[0], window_m, profile.rotation_range_rad):
+            return None
+        return compose_residual(out[0], out[1], centre)
+
+    found = [m for m in map(reading, crossing_centres(predicted, window_m, profile.rotation_range_rad)) if m]
+    refined = [m for m in map(reading, [f[0] for f in found if is_sharp(f[1], sharp_m)]) if m]
+    return refined + found if finite else None
+
+
 def consensus(poses, covariances, tol_m: float = CONSENSUS_M, tol_rad: float = CONSENSUS_RAD,
               max_sd_m: float = math.inf, min_count: int = CONSENSUS_COUNT, prior=None):
     """(pose float64[3], covariance float64[3, 3], members) of a group of crossings that agree, or

@@ -101,7 +101,7 @@ from . import gaps, stream_time
 from .arguments import config_number, stream_timestamp
 from .centring import MAX_TURN_RAD, next_turn, uncentre
 from .estimate import BRIDGED, DEGENERATE, Estimate, PreparedSweep, Trajectory, window_covariance  # noqa: F401
-from .gaps import GAP, NEW_SEGMENT, NEW_SEGMENT_GAP_S, SweepPeriod, compose_residual
+from .gaps import GAP, NEW_SEGMENT, NEW_SEGMENT_GAP_S, SweepPeriod
 from .graph_step import GraphStep
 from .motion_prior import GATED, PRIOR_DOMINATED, ExternalOdometry, MotionPrior, MotionPriorConfig
 from .motion_prior import compose as compose_relative
@@ -327,21 +327,16 @@ class RadarOdometer:
         return not self._stamps
 
     def _step(self, scan: RadarScan, odometry, prepared: PreparedSweep | None = None) -> Estimate | None:
+        """One sweep through the stages (`radar_odom.odometry` names each stage's home)."""
+        # time: in order after the stream, the same range bins; a new stream, a new segment, or an interval
         self._check_geometry(scan)
         ts = scan.timestamp_us
         first = self._check_time(ts, scan.source)
         self._check_range_scale(scan, first)
+        # sweep checks: can the model read it at all
         problem = self.sweep_problem(scan) if prepared is None else prepared.problem
         if first:
-            # A stream must start from a sweep that can be matched: a degenerate first sweep is
-            # recorded at identity but never becomes the reference.
-            if problem is None:
-                self._ref_feed = self._run_first(self._input(scan, prepared, None))  # no velocity yet
-                self._ref_turn = 0.0
-                self._keep_reference(scan, None)
-                self._set_reference(0)
-            self._append(np.eye(3), ts)
-            return None
+            return self._start_stream(scan, prepared, problem, ts)
         dt_s = (ts - self._stamps[-1]) * 1e-6
         if self.max_gap_s is None and dt_s > NEW_SEGMENT_GAP_S:
             return self._new_segment(scan, prepared, problem, ts)
@@ -350,27 +345,45 @@ class RadarOdometer:
         if problem is not None:
             return self._degenerate(problem, ts, dt_s, odo_rel, flags)
         if self._ref_feed is None:
-            # every earlier sweep of this stream was degenerate: nothing to match against yet,
-            # so this one gets the prior and becomes the reference
-            twist = self._deskew_twist(scan)
-            est = self._degenerate("no_reference", ts, dt_s, odo_rel, flags)
-            self._ref_feed = self._run_first(self._input(scan, prepared, twist))
-            self._ref_turn = 0.0
-            self._keep_reference(scan, twist)
-            self._set_reference(len(self._poses) - 1)
-            return est
+            return self._first_reference(scan, prepared, ts, dt_s, odo_rel, flags)
+        # graph input: drawn with the reference's twist (de-skew), else as prepared
         twist = self._pair_twist(scan)
         x = self._input(scan, prepared, twist)
+        # predict and match: against the reference; across a gap, from the prediction
         out = self._match(scan, x, ts, twist)
         if out is not None and twist is None and self.deskew and not self._recent_motion:
             out, twist = self._match_deskewed_first(scan, ts, out)
         if out is None:
             return self._degenerate("nonfinite", ts, dt_s, odo_rel, flags)
+        # fuse with the prior and chain onto the trajectory; the new sweep becomes the reference
         pose_ref, cov, new_ref, new_turn = out[:4]
-        flags |= out[4] if len(out) > 4 else set()  # a gap crossing's verdict (`_match`)
+        flags |= out[4] if len(out) > 4 else set()  # a gap crossing's verdict (`_cross_gap`)
         est = self._accept(pose_ref, cov, new_ref, ts, dt_s, odo_rel, flags, ref_turn=new_turn)
         self._keep_reference(scan, twist)
         return est
+
+    def _start_stream(self, scan: RadarScan, prepared, problem, ts: int) -> None:
+        """A stream's first sweep, recorded at identity. A stream must start from a sweep that can be
+        matched: a degenerate first sweep is recorded but never becomes the reference."""
+        if problem is None:
+            self._make_reference(scan, prepared, None, 0)  # no velocity yet
+        self._append(np.eye(3), ts)
+        return None
+
+    def _first_reference(self, scan: RadarScan, prepared, ts: int, dt_s: float, odo_rel, flags) -> Estimate:
+        """Every earlier sweep of the stream was degenerate: nothing to match against yet, so this
+        one gets the prior's pose (flagged ``no_reference``) and becomes the reference."""
+        twist = self._deskew_twist(scan)
+        est = self._degenerate("no_reference", ts, dt_s, odo_rel, flags)
+        self._make_reference(scan, prepared, twist, len(self._poses) - 1)
+        return est
+
+    def _make_reference(self, scan: RadarScan, prepared, twist, index: int) -> None:
+        """Make the sweep at trajectory ``index`` the reference, drawn with ``twist`` in its own frame."""
+        self._ref_feed = self._run_first(self._input(scan, prepared, twist))
+        self._ref_turn = 0.0
+        self._keep_reference(scan, twist)
+        self._set_reference(index)
 
     # --- pieces ---------------------------------------------------------------------------
     def _check_range_scale(self, scan: RadarScan, first: bool) -> None:
@@ -384,12 +397,9 @@ class RadarOdometer:
         self._forget_motion()
         self._ref_feed = None
         self._ref_turn = 0.0
-        if problem is None:
-            self._ref_feed = self._run_first(self._input(scan, prepared, None))
-            self._keep_reference(scan, None)
         self._append(self._poses[-1].copy(), ts)
-        if self._ref_feed is not None:
-            self._set_reference(len(self._poses) - 1)
+        if problem is None:
+            self._make_reference(scan, prepared, None, len(self._poses) - 1)
         flags = {NEW_SEGMENT} if problem is None else {NEW_SEGMENT, DEGENERATE, problem}
         return Estimate(np.zeros(3), self._prior_cov.copy(), ts, frozenset(flags))
 
@@ -470,70 +480,68 @@ class RadarOdometer:
         return self._sweep_input(scan) if prepared is None else prepared.input
 
     def _match(self, scan: RadarScan, x: np.ndarray, ts: int, twist):
-        """(pose, cov, new reference, its turn) of the new sweep against the reference, or None if
-        non-finite.
+        """The predict and match stages: (pose, cov, new reference, its turn[, flags]) of the new sweep
+        against the reference, or None if non-finite.
 
         Where the reference is further back than a gap (`radar_odom.odometry.gaps`) and the prior can
-        predict the motion, the sweep is drawn in the predicted frame and the measured residual
-        composed with the prediction; the new reference is then the sweep in its own frame (turn 0).
-        Otherwise, with ``centre_yaw``, the sweep is drawn turned by the predicted yaw
-        (`radar_odom.odometry.centring`) and the new reference keeps that turn.
+        predict the motion over it, the gap is crossed from the prediction (`_cross_gap`). Otherwise
+        one match (`_match_plain`; with ``centre_yaw`` the sweep drawn turned by the predicted yaw).
         Poses leave here in the vehicle's frame: a model with a mount yaw
         (``ModelInfo.mount_yaw_rad``, `radar-odom adapt`) has its matches turned by it.
         """
-        mount = self.info.mount_yaw_rad
         ref_ts = self._stamps[self._ref_index]
         interval_s = (ts - ref_ts) * 1e-6
-        pred = None
         if self._movable and self._period.is_gap(interval_s) and self._prior.ready:
             # the last velocity held as a constant twist over the gap (an arc), its covariance grown with it
             pred = gaps.crossing_prior(self._prior.velocity * self._prior.interval_s,
                                        self._prior.velocity_covariance * self._prior.interval_s ** 2,
                                        self._prior.interval_s, interval_s, self._lead_s(ref_ts))
-        if pred is None:
-            if self.centre_yaw:
-                out = self._match_centred(scan, x, twist, interval_s, ref_ts)
-                if out is None:
-                    return None
-            else:
-                out = self._run_pair(x)
-                if out is None:
-                    return None
-                out = (*out, 0.0)  # without centring every reference is drawn at turn 0
-            if not mount:
-                return out
-            return (*turn_frame(out[0], out[1], mount), out[2], out[3])
+            if pred is not None:
+                return self._cross_gap(scan, x, twist, pred)
+        return self._match_plain(scan, x, twist, interval_s, ref_ts)
+
+    def _match_plain(self, scan: RadarScan, x: np.ndarray, twist, interval_s: float, ref_ts: int):
+        """(pose, cov, new reference, its turn) of one match of the new sweep against the reference
+        (drawn turned by the predicted yaw with ``centre_yaw``), or None if non-finite."""
+        if self.centre_yaw:
+            out = self._match_centred(scan, x, twist, interval_s, ref_ts)
+            if out is None:
+                return None
+        else:
+            out = self._run_pair(x)
+            if out is None:
+                return None
+            out = (*out, 0.0)  # without centring every reference is drawn at turn 0
+        mount = self.info.mount_yaw_rad
+        if not mount:
+            return out
+        return (*turn_frame(out[0], out[1], mount), out[2], out[3])
+
+    def _cross_gap(self, scan: RadarScan, x: np.ndarray, twist, pred):
+        """(pose, cov, new reference, 0.0[, flags]) of a sweep across a gap, ``pred`` the gap's prior
+        (pose, cov): the sweep matched from several window centres around the prediction
+        (`gaps.crossing_readings`); taken where readings agree within the prior (`gaps.consensus`,
+        `gaps.crossing_d2`), else the prediction, flagged ``gated`` and ``prior_dominated``. None where no
+        match is finite or the new reference is not. The new reference is the sweep in its own frame."""
+        mount = self.info.mount_yaw_rad
         predicted = turn_frame(pred[0], None, -mount)[0]  # the prediction in the radar's frame
         # the reference was drawn turned by a_ref: draw the new sweep in R(a_ref)'s view of the prediction
         a_ref = self._ref_turn
         turned = to_xyyaw(se2(0.0, 0.0, -a_ref) @ se2(*predicted))
-        p = self.profile
-        window_m = p.translation_cells * p.resolution_m
-        tol_m, tol_rad, sharp_m = gaps.agreement(p)
-        finite = False
 
-        def match_at(centre):
-            # (pose, cov) in the reference's drawn frame of one match with the window centred on
-            # ``centre``; None where not finite or on the window's edge (it measured nothing inside)
-            nonlocal finite
-            frame = to_xyyaw(invert(se2(*centre)))
-            out = self._run_pair(self._sweep_input(scan, SweepMotion(twist=twist, frame_pose=tuple(frame))),
-                                 keep_reference=True)
-            finite |= out is not None
-            if out is None or gaps.at_window_edge(out[0], window_m, p.rotation_range_rad):
-                return None
-            return compose_residual(out[0], out[1], centre)
+        def residual_at(centre):
+            drawn = self._sweep_input(scan, SweepMotion(twist=twist, frame_pose=tuple(to_xyyaw(invert(se2(*centre))))))
+            out = self._run_pair(drawn, keep_reference=True)
+            return None if out is None else out[:2]
 
-        found = [m for m in map(match_at, gaps.crossing_centres(turned, window_m, p.rotation_range_rad)) if m]
-        # each sharp reading matched again centred on itself: a true peak is found where it is looked
-        # for (docs/gaps.md); the refined readings come first, so a group's pose is one drawn at itself
-        refined = [m for m in map(match_at, [f[0] for f in found if gaps.is_sharp(f[1], sharp_m)]) if m]
-        crossed = [turn_frame(*uncentre(*m, a_ref, 0.0), mount) for m in refined + found]
-        if not finite:
+        readings = gaps.crossing_readings(turned, residual_at, self.profile)
+        if readings is None:
             return None
+        crossed = [turn_frame(*uncentre(*m, a_ref, 0.0), mount) for m in readings]
         new_ref = x if self.info.form == "pair" else self._run_first(x)
         if not np.all(np.isfinite(new_ref)):
             return None
+        tol_m, tol_rad, sharp_m = gaps.agreement(self.profile)
         agreed = gaps.consensus([c[0] for c in crossed], [c[1] for c in crossed], tol_m, tol_rad, sharp_m, prior=pred)
         if agreed is None or gaps.crossing_d2(agreed[0], agreed[1], *pred) > self._prior.config.gate_d2:
             # no centre agreed, or they agree on a motion the gap's prior rules out: keep the prediction
