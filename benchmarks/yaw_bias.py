@@ -29,6 +29,13 @@ With frozen sweeps, a bias ``b = W + S + M`` (W: the world's left/right asymmetr
 handedness, M: the method's) reads ``−W + S + M`` in the mirrored world and ``W + S − M`` from
 mirrored sweeps; the script prints the three parts solved from the three rows.
 
+``stages`` (torch, the shipped checkpoint of the first ``--models`` name): which stage of the graph
+reads the bias, on the same straight drives (moving and frozen), each in torch's fast step: the
+shipped profile (cubic polar rotation, its high-pass), the same with the bilinear polar rotation,
+without the high-pass, with the mask ≡ 1 (raw), and, taking the graph's rotation and read-out out
+altogether, the shipped masked features turned by exact (Fourier) rotations every quarter yaw step
+and read at the parabola through the best translation score of each (`yaw_kernels.py`'s tools).
+
 ``bend``: what a fix must not cost: the yaw error and yaw slope on a steady ``--bend`` (°/sweep).
 
 ``--write DIR``: the fix, built: the shipped checkpoints (``--models``' names) with a left/right
@@ -237,6 +244,60 @@ def write_fixed(names, out_dir: Path) -> None:
         print(f"wrote {pt} and {onnx}", flush=True)
 
 
+def part_stages(name: str, seeds, frames: int) -> None:
+    import torch
+    from yaw_kernels import best_scores, parabola_peak, rotate_fft
+
+    from radar_odom.odometry.sweep_input import graph_input
+    from radar_odom.profiles import GridProfile
+    from radar_odom_export.checkpoint import read_checkpoint_dict, resolve_checkpoint
+    from radar_odom_export.fast_search import FastStreamStep
+    from radar_odom_export.model import MaskedCorrelator
+    from radar_odom_export.symmetry import symmetrise_left_right_
+
+    ckpt = read_checkpoint_dict(resolve_checkpoint(name))
+    base = GridProfile.from_dict(ckpt["profile"])
+
+    def step(masking="learned", symmetric=False, **changes):
+        model = MaskedCorrelator(base.with_(**changes) if changes else base, masking=masking)
+        if masking == "learned":
+            model.load_state_dict(ckpt["state_dict"], strict=True)
+            if symmetric:
+                symmetrise_left_right_(model.masker)
+        return FastStreamStep(model.eval()).eval()
+
+    steps = {f"graph: {base.rotation_kernel} rotation, high-pass {base.feature_highpass_px:g} px (shipped)": step(),
+             "graph: bilinear rotation": step(rotation_kernel="bilinear"),
+             "graph: no high-pass": step(feature_highpass_px=0.0),
+             "graph: mask ≡ 1 (raw)": step("raw"),
+             "graph: mirror-symmetric masker (the fix)": step(symmetric=True)}
+    exact = "shipped features, exact rotation, parabola (no graph rotation or read-out)"
+    info = type("Info", (), {"profile": base, "polar_input": None})()
+    quarter, shifts, n = base.rotation_step_rad / 4, range(-6, 7), base.translation_cells
+    zero = torch.zeros(1, 2, base.width_px, base.width_px // 2 + 1)
+    errs = {}
+    for frozen in (False, True):
+        for seed in seeds:
+            scans, truth = drive(seed, frames, frozen=frozen)
+            x = [torch.from_numpy(graph_input(s, info)) for s in scans]
+            with torch.no_grad():
+                for label, st in steps.items():
+                    _, _, state = st(x[0], zero)
+                    for k in range(1, len(x)):
+                        pose, _, state = st(x[k], state)
+                        if k - 1 >= SKIP_PAIRS:
+                            errs.setdefault((frozen, label), []).append(float(pose[0, 2]) - truth[k - 1])
+                feats = [steps[next(iter(steps))].model.sweep_features(xi)[0].numpy() for xi in x]
+            for k in range(SKIP_PAIRS + 1, len(x)):
+                scores = best_scores(feats[k - 1], [rotate_fft(feats[k], s * quarter) for s in shifts], n)
+                est = (parabola_peak(scores) - len(shifts) // 2) * quarter
+                errs.setdefault((frozen, exact), []).append(est - truth[k - 1])
+    print(f"\n| {name}: sweeps | stage | yaw error ° / sweep (± s.e.) | pairs |\n|---|---|---:|---:|")
+    for (frozen, label), v in errs.items():
+        mean, se = mean_se_deg(v)
+        print(f"| {'frozen' if frozen else 'moving'} | {label} | {mean:+.4f} ± {se:.4f} | {len(v)} |", flush=True)
+
+
 def part_bend(models: dict, seeds, frames: int, rate_deg: float) -> None:
     """A fix for the bias must not cost the bends: the yaw error and the yaw slope (Σ est·true / Σ true²)
     on a steady bend of ``rate_deg`` per sweep, as simulated (moving)."""
@@ -263,7 +324,8 @@ def main(argv=None) -> int:
                     help="shipped names or .onnx paths, comma-separated (default: %(default)s)")
     ap.add_argument("--seeds", default="20000,20001,20002,20003", help="fresh seeds >= 10000 (default: %(default)s)")
     ap.add_argument("--frames", type=int, default=28, help="sweeps per drive (default: %(default)s)")
-    ap.add_argument("--parts", default="shift,world,bend", help="shift, world, bend (default: %(default)s)")
+    ap.add_argument("--parts", default="shift,world,bend",
+                    help="shift, world, bend, stages (torch) (default: %(default)s)")
     ap.add_argument("--bend", type=float, default=0.5, help="the bend part's rate, ° per sweep (default: %(default)s)")
     ap.add_argument("--threads", type=int, default=1, help="onnxruntime threads (default: %(default)s)")
     ap.add_argument("--write", type=Path, default=None, metavar="DIR",
@@ -290,6 +352,8 @@ def main(argv=None) -> int:
         part_shift(models, seeds, args.frames)
     if "world" in parts:
         part_world(models, seeds, args.frames)
+    if "stages" in parts:
+        part_stages(args.models.split(",")[0], seeds, args.frames)
     if "bend" in parts:
         part_bend(models, seeds, args.frames, args.bend)
     print(f"\n{time.perf_counter() - t0:.0f} s")
