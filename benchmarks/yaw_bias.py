@@ -7,8 +7,9 @@ split by what each variant of the sweeps keeps or takes away.
 
 Every row is the mean (estimated − true) yaw per sweep, ° ± its standard error over the pairs, of the
 graph alone (consecutive sweeps through the ONNX stream step, no motion prior, no de-skew), over
-straight urban roads at 10 m/s (`scorecard.bend_scenario(0.0)`), pairs 5… of each drive (the first 4
-are the speed ramp). Seeds are fresh (>= 10000: lower ones trained, calibrated or tuned something).
+straight roads at 10 m/s (`scorecard.bend_scenario(0.0, --scenario)`, urban by default), pairs 5… of
+each drive (the first 4 are the speed ramp). Seeds are fresh
+(>= 10000: lower ones trained, calibrated or tuned something).
 
 ``shift``: one sweep (frozen, below) drawn again in a frame moved by a pure translation
 (`SweepMotion(frame_pose=(dx, 0, 0))`) and matched against itself: the same content, no rotation.
@@ -142,12 +143,15 @@ def pair_yaw_rad(model, ref, cur) -> float:
     return float(stream_yaws_rad(model, [ref, cur])[0])
 
 
+SCENARIO = ["urban"]  # the simulator preset every drive uses (--scenario)
+
+
 def drive(seed: int, frames: int, rate_deg: float = 0.0, **variant):
-    """(scans, true yaw float64[frames − 1] rad) of an urban drive at 10 m/s, straight or bending
-    ``rate_deg`` per sweep."""
+    """(scans, true yaw float64[frames − 1] rad) of a drive at 10 m/s on the ``--scenario`` preset,
+    straight or bending ``rate_deg`` per sweep."""
     from scorecard import bend_scenario
 
-    sim = simulator_class(**variant)(seed, frames, bend_scenario(rate_deg))
+    sim = simulator_class(**variant)(seed, frames, bend_scenario(rate_deg, SCENARIO[0]))
     fr = list(sim)
     truth = np.array([f.pose_rel[2] for f in fr[1:]])
     if variant.get("still_at_s") is not None:
@@ -326,6 +330,7 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=28, help="sweeps per drive (default: %(default)s)")
     ap.add_argument("--parts", default="shift,world,bend",
                     help="shift, world, bend, stages (torch) (default: %(default)s)")
+    ap.add_argument("--scenario", default="urban", help="simulator preset of the drives (default: %(default)s)")
     ap.add_argument("--bend", type=float, default=0.5, help="the bend part's rate, ° per sweep (default: %(default)s)")
     ap.add_argument("--threads", type=int, default=1, help="onnxruntime threads (default: %(default)s)")
     ap.add_argument("--write", type=Path, default=None, metavar="DIR",
@@ -335,6 +340,7 @@ def main(argv=None) -> int:
         write_fixed(args.models.split(","), args.write)
         return 0
     seeds = [int(s) for s in args.seeds.split(",")]
+    SCENARIO[0] = args.scenario
     if min(seeds) < 10000:
         ap.error("seeds below 10000 trained, calibrated or tuned something: use fresh ones")
     if args.frames < SKIP_PAIRS + 3:
@@ -344,7 +350,7 @@ def main(argv=None) -> int:
     from radar_odom.onnx_model import OnnxModel
 
     models = {m: OnnxModel(resolve_model(m), threads=args.threads) for m in args.models.split(",")}
-    print(f"seeds {', '.join(map(str, seeds))}; {args.frames} sweeps per drive; straight urban road at 10 m/s; "
+    print(f"seeds {', '.join(map(str, seeds))}; {args.frames} sweeps per drive; {args.scenario} road at 10 m/s; "
           f"graph alone; pairs {SKIP_PAIRS + 1}… of each drive", flush=True)
     t0 = time.perf_counter()
     parts = args.parts.split(",")
