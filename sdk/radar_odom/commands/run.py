@@ -1,7 +1,7 @@
 """``radar-odom run SEQ [--model M|NAME] [-o OUTDIR]``: odometry over a recorded sequence."""
 from __future__ import annotations
 
-from . import threads_arg
+from . import print_warnings, threads_arg
 
 HELP = ("odometry over a recording (Oxford layout, Boreas, MulRan, RADIATE, or a ROS 1/ROS 2 bag); writes "
         "trajectories, estimates and a plot")
@@ -35,6 +35,12 @@ def register(subparsers) -> None:
                    help="exported .onnx file, or the name of a shipped model (radar_odom.pretrained_names()); "
                         "default: cart-0.4 if shipped, else the first shipped model")
     p.add_argument("-o", "--output", default=None, help="output folder (default: ./run-<SEQ name>)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an earlier run's outputs in the output folder (without it, a folder that holds "
+                        "them is refused)")
+    p.add_argument("--keep-stamps", action="store_true",
+                   help="keep the sweep stamps as recorded (RADIATE, bags): no time base fitted on the sensor's "
+                        "period, late host stamps not put back (repair_stamps=False)")
     p.add_argument("--threads", type=threads_arg, default=None, help="onnxruntime threads (default: physical cores)")
     p.add_argument("--max-gap-s", type=float, default=None,
                    help="stop the run with an error at a larger time (s) between consecutive sweeps (default: "
@@ -117,11 +123,15 @@ def run(args) -> int:
     from ..model_zoo import default_model_name, resolve_model
     from ..odometry.gaps import GAP, NEW_SEGMENT, NEW_SEGMENT_GAP_S
     from ..odometry.pipeline import DEFAULT_PREFETCH
-    from .run_sequence import run_sequence
+    from .run_sequence import earlier_outputs, run_sequence
 
     model_spec = args.model or default_model_name()
     model = resolve_model(model_spec)
     out = Path(args.output) if args.output else Path(f"run-{Path(args.sequence).resolve().name}")
+    earlier = earlier_outputs(out)
+    if earlier and not args.overwrite:
+        raise OutputError(f"{out} holds an earlier run's outputs ({', '.join(earlier)}); pass --overwrite to replace "
+                          "them, or -o to write elsewhere")
     bag_geometry = {k: getattr(args, k) for k in BAG_OPTIONS if getattr(args, k, None) is not None}
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", GroundTruthWarning)
@@ -132,7 +142,8 @@ def run(args) -> int:
                                   deskew=args.deskew, centre_yaw=args.centre_yaw,
                                   gt_time_offset=_offset(args.gt_time_offset, "--gt-time-offset"),
                                   gt_heading_offset_deg=_offset(args.gt_heading_offset_deg, "--gt-heading-offset-deg"),
-                                  topic=args.topic, bag_geometry=bag_geometry, bag_out=args.bag_out)
+                                  topic=args.topic, bag_geometry=bag_geometry, bag_out=args.bag_out,
+                                  repair_stamps=not args.keep_stamps)
         except RadarOdomError:
             _print_warnings(caught, sys.stderr)
             raise
@@ -200,5 +211,4 @@ def _offset(text: str, flag: str):
 
 
 def _print_warnings(caught, stream) -> None:
-    for w in caught:
-        print(f"radar-odom run: warning: {w.message}", file=stream)
+    print_warnings("run", caught, stream)
