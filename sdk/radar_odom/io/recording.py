@@ -16,8 +16,8 @@ def open_recording(source, topic: str | None = None, bag_geometry: dict | None =
 
     ``topic`` and ``bag_geometry`` (`radar_odom.ros.msgs.PolarImageGeometry` fields) apply to bags only;
     given for a folder they are a `ConfigError`. A ``source`` that does not exist is a `SequenceError`
-    saying so (not that it is "not a bag"), with the layouts a recording can have. ``repair_stamps``: False keeps the sweep stamps as recorded
-    (`radar_odom.io.timebase`; `radar-odom run --keep-stamps`)."""
+    saying so (not that it is "not a bag"), with the layouts a recording can have. ``repair_stamps``: False
+    keeps the sweep stamps as recorded (`radar_odom.io.timebase`; `radar-odom run --keep-stamps`)."""
     from .bag import is_bag, open_bag
     from .sequence import read_sequence
 
