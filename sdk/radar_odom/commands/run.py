@@ -120,6 +120,7 @@ def run(args) -> int:
 
     from ..errors import GroundTruthWarning, OutputError, RadarOdomError
     from ..evaluation.report import format_metrics
+    from ..io.bag import is_bag
     from ..model_zoo import default_model_name, resolve_model
     from ..odometry.gaps import GAP, NEW_SEGMENT, NEW_SEGMENT_GAP_S
     from ..odometry.pipeline import DEFAULT_PREFETCH
@@ -133,6 +134,9 @@ def run(args) -> int:
         raise OutputError(f"{out} holds an earlier run's outputs ({', '.join(earlier)}); pass --overwrite to replace "
                           "them, or -o to write elsewhere")
     bag_geometry = {k: getattr(args, k) for k in BAG_OPTIONS if getattr(args, k, None) is not None}
+    # the GNSS/INS options are checked before the recording is read (minutes for a long one)
+    time_offset_s = _offset(args.gt_time_offset, "--gt-time-offset")
+    heading_offset_deg = _offset(args.gt_heading_offset_deg, "--gt-heading-offset-deg", limit=360.0)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", GroundTruthWarning)
         try:
@@ -140,8 +144,8 @@ def run(args) -> int:
                                   plot=not args.no_plot, motion_prior=not args.no_motion_prior,
                                   on_error=args.on_error, prefetch=0 if args.no_pipeline else DEFAULT_PREFETCH,
                                   deskew=args.deskew, centre_yaw=args.centre_yaw,
-                                  gt_time_offset=_offset(args.gt_time_offset, "--gt-time-offset"),
-                                  gt_heading_offset_deg=_offset(args.gt_heading_offset_deg, "--gt-heading-offset-deg"),
+                                  gt_time_offset=time_offset_s,
+                                  gt_heading_offset_deg=heading_offset_deg,
                                   topic=args.topic, bag_geometry=bag_geometry, bag_out=args.bag_out,
                                   repair_stamps=not args.keep_stamps)
         except RadarOdomError:
@@ -152,6 +156,11 @@ def run(args) -> int:
             where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
             raise OutputError(f"{where}{exc.strerror or exc}") from None
     _print_warnings(caught, sys.stderr)
+    given = [flag for flag, value in (("--gt-time-offset", time_offset_s), ("--gt-heading-offset-deg",
+                                                                           heading_offset_deg)) if value is not None]
+    if given and is_bag(args.sequence):  # said, not silently dropped
+        print(f"radar-odom run: warning: {' and '.join(given)} ignored: a ROS bag carries no GNSS/INS reference "
+              "to align (they apply to RADIATE's GPS_IMU_Twist/)", file=sys.stderr)
     gated = sum(e.gated for e in result.estimates)
     dominated = sum(e.prior_dominated for e in result.estimates)
     prior = "motion prior off" if args.no_motion_prior else f"{gated} gated, {dominated} prior-dominated"
@@ -193,8 +202,8 @@ def run(args) -> int:
     return EXIT_OK
 
 
-def _offset(text: str, flag: str):
-    """'auto' → None (estimate it), else the number; a clear error for anything else."""
+def _offset(text: str, flag: str, limit: float | None = None):
+    """'auto' → None (estimate it), else the number; a clear error for anything else (beyond ±``limit`` too)."""
     import math
 
     from ..errors import ConfigError
@@ -207,6 +216,8 @@ def _offset(text: str, flag: str):
         raise ConfigError(f"{flag} takes 'auto' or a number, got {text!r}") from None
     if not math.isfinite(value):
         raise ConfigError(f"{flag} must be finite, got {text!r}")
+    if limit is not None and abs(value) > limit:
+        raise ConfigError(f"{flag} {text}: beyond ±{limit:g}; give an angle within a turn, or 'auto'")
     return value
 
 

@@ -324,7 +324,7 @@ def read_sequence(
     elif format in FORMATS:
         fmt, folder = format, _sweep_folder(root, format)
     else:
-        raise ValueError(f"unknown radar format {format!r}; choose one of {', '.join(FORMATS)} or None")
+        raise ConfigError(f"unknown radar format {format!r}; choose one of {', '.join(FORMATS)} or None")
     if not folder.is_dir():
         raise SequenceError(f"{root}: no {folder.name}/ folder of radar PNGs for format {fmt!r}")
     if fmt == "radiate":
