@@ -21,6 +21,7 @@ MIN_COVERAGE = 0.75
 MAX_RESOLUTION_RATIO = 8.0
 # the range of a sweep's column 0 is a calibration of decimetres (Boreas −0.31 m); below this it is a wrong setting
 MIN_RANGE_OFFSET_M = -5.0
+MAX_OFFSET_SHARE = 0.5  # a sweep starting beyond half the correlated disc's radius leaves 3/4 of its area empty
 NOISE_STRUCTURE = 0.2
 _MAX_STAT_BINS = 256  # range bins sampled for the statistics (a stride over the model's region)
 
@@ -139,10 +140,10 @@ def model_region_m(info) -> tuple[float, float]:
 def implausible_range_bins(range_resolution_m: float, range_offset_m: float, info) -> str | None:
     """Why range bins of ``range_resolution_m`` (m per bin) from ``range_offset_m`` (m, the range of column 0)
     cannot be a radar's for the Cartesian model ``info`` (a `ModelInfo`), or None: a resolution more than
-    `MAX_RESOLUTION_RATIO` times finer or coarser than the model's sweeps' (its ``sweep_geometry``, where it has
-    one), an offset below `MIN_RANGE_OFFSET_M` (ranges below zero), or one beyond the near edge of the disc the
-    model correlates (``near_range_m``: the disc's inside would be missing). The reach (the disc beyond the last
-    bin) is `check_sweep_geometry`'s own test."""
+    `MAX_RESOLUTION_RATIO` times finer or coarser than the model's sweeps' (its ``sweep_geometry``, where it
+    has one), an offset below `MIN_RANGE_OFFSET_M` (ranges below zero), or one beyond `MAX_OFFSET_SHARE` of
+    the radius of the disc the model correlates (``support_radius_m``: most of its area would be missing).
+    The reach (the disc beyond the last bin) is `check_sweep_geometry`'s own test."""
     p = info.profile
     want = (info.sweep_geometry or {}).get("range_resolution_m")
     if want:
@@ -154,9 +155,9 @@ def implausible_range_bins(range_resolution_m: float, range_offset_m: float, inf
     if range_offset_m < MIN_RANGE_OFFSET_M:
         return (f"column 0 lies at {range_offset_m:g} m, below {MIN_RANGE_OFFSET_M:g} m (a radar's first bin is "
                 "within decimetres of its antenna: Boreas −0.31 m)")
-    if range_offset_m > max(float(p.near_range_m), 0.0) + 1e-9:
-        return (f"column 0 lies at {range_offset_m:g} m, beyond {float(p.near_range_m):g} m where the disc the model "
-                f"correlates begins (radius {float(p.support_radius_m):.2f} m)")
+    if range_offset_m >= MAX_OFFSET_SHARE * float(p.support_radius_m):
+        return (f"column 0 lies at {range_offset_m:g} m, beyond half the radius of the disc the model correlates "
+                f"({float(p.support_radius_m):.2f} m): most of the disc would be missing")
     return None
 
 
