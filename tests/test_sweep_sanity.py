@@ -5,7 +5,6 @@ import numpy as np
 import pytest
 from test_odometer import PERIOD_US, T0_US, drive, render_scan, world_points
 
-from fixtures import GEOM, TINY
 from radar_odom.commands.cli import main
 from radar_odom.errors import (
     ConfigError,
@@ -20,6 +19,8 @@ from radar_odom.odometry.odometer import RadarOdometer
 from radar_odom.odometry.stream_time import AZIMUTH_COUNT, MAX_AZIMUTH_COUNT_CHANGE, azimuth_count
 from radar_odom.odometry.sweep_checks import MAX_RESOLUTION_RATIO, MIN_RANGE_OFFSET_M, implausible_range_bins
 from radar_odom.scan import RadarScan
+
+from fixtures import GEOM, TINY
 
 
 @pytest.fixture(scope="module")
