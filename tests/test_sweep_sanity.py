@@ -166,3 +166,28 @@ def test_the_sdks_bad_input_errors_are_typed_and_stay_what_they_were(tiny_model,
     with pytest.raises(InputTypeError, match="RadarScan.from_arrays") as err:
         RadarOdometer(tiny_model).step(scan.power)
     assert isinstance(err.value, TypeError)
+
+
+@pytest.mark.parametrize("option, value, said", [("--range-resolution-m", "10", "10 m"),
+                                                 ("--range-offset-m", "1e6", "1e+06 m"),
+                                                 ("--range-offset-m", "-100", "-100 m")])
+def test_a_bag_read_with_implausible_range_bins_is_refused_in_one_line(option, value, said, cli_model, tmp_path,
+                                                                       capsys):
+    """`--range-offset-m 1e6` ran to exit 0 with every estimate degenerate and nothing said; 10 m bins and a −100 m
+    offset gave wrong steps unflagged."""
+    pytest.importorskip("rosbags")
+    from test_bags import write_bag
+
+    from radar_odom import read_sequence
+    from radar_odom.sim import write_drive
+
+    drive = write_drive(tmp_path / "drive", seed=10042, frames=3, progress=False)
+    seq = read_sequence(drive)
+    bag = write_bag(tmp_path / "drive.mcap", [seq.scan(i) for i in range(len(seq))])
+    out = tmp_path / "out"
+    assert main(["run", str(bag), "--model", str(cli_model), "-o", str(out), "--no-plot", option, value]) == 1
+    err = capsys.readouterr().err
+    errors = [ln for ln in err.splitlines() if "error" in ln.lower()]  # the rest is the progress bar
+    assert "Traceback" not in err and len(errors) == 1, err
+    assert errors[0].startswith("radar-odom run: error: ") and said in errors[0] and "--range-" in errors[0]
+    assert not out.exists()
