@@ -60,9 +60,10 @@ def register(subparsers) -> None:
                         "next-best ratio, and leaves the reference unused where that is ambiguous")
     p.add_argument("--gt-heading-offset-deg", default="auto", metavar="auto|DEGREES",
                    help="GNSS/INS reference: the INS heading minus the vehicle's direction of travel, degrees "
-                        "counter-clockwise, one value for the drive; 'auto' (default) follows it in time (a ±5 s "
-                        "running median of the heading's offset from the GNSS track over moving samples: the INS "
-                        "re-aligns while driving) and prints its range")
+                        "counter-clockwise, one value for the drive, within ±360 (a ROS bag has no reference: "
+                        "ignored, and said); 'auto' (default) follows it in time (a ±5 s running median of the "
+                        "heading's offset from the GNSS track over moving samples: the INS re-aligns while driving) "
+                        "and prints its range")
     p.add_argument("--on-error", choices=("skip", "stop"), default="skip",
                    help="a sweep that cannot be read (corrupt file, garbage timestamps): 'skip' reports it, "
                         "bridges the trajectory across it (flagged degenerate) and exits with status 3; "
