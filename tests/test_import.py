@@ -169,6 +169,29 @@ def test_the_layering_check_sees_a_wrong_import():
            "radar_odom.scan (shared vocabulary) imports radar_odom.odometry.odometer"]
 
 
+def _export_reaching_into_commands(graph: dict[str, set[str]]) -> list[str]:
+    """Imports from the torch side (``radar_odom_export``) up into the command line (``radar_odom.commands``):
+    the exporter sits beside the runtime's lower layers, below ``commands/`` (issue 42, item 6)."""
+    return [f"{mod} imports {dep}" for mod, deps in sorted(graph.items()) if mod.startswith("radar_odom_export")
+            for dep in sorted(deps) if dep == "radar_odom.commands" or dep.startswith("radar_odom.commands.")]
+
+
+def test_the_export_package_never_imports_the_command_line():
+    graph = _module_graph()
+    assert "radar_odom.io.recording" in graph["radar_odom_export.adapt"]
+    assert "radar_odom.model_zoo" in graph["radar_odom_export.adapt"]
+    assert _export_reaching_into_commands(graph) == []
+
+
+def test_the_export_layering_check_sees_a_wrong_import():
+    assert _export_reaching_into_commands({
+        "radar_odom_export.adapt": {"radar_odom.commands.export", "radar_odom.io.recording"},
+        "radar_odom_export.train": {"radar_odom.commands"},
+        "radar_odom.commands.adapt": {"radar_odom_export.adapt"},
+    }) == ["radar_odom_export.adapt imports radar_odom.commands.export",
+           "radar_odom_export.train imports radar_odom.commands"]
+
+
 def test_every_command_help_prints_no_doubled_percent():
     """Descriptions use RawDescriptionHelpFormatter, which leaves '%%' as typed (issue 24 found
     `train --help` printing "20%%"); every subcommand's help must read as written."""

@@ -150,7 +150,7 @@ def test_errors_that_are_not_one_sweeps_fault_propagate(model_path, drive):
     assert seen == [0, 1] and not workers_alive()
     with pytest.raises(TypeError, match="sweep files or RadarScans"):
         list(iter_estimates([42], odo, prefetch=2))
-    with pytest.raises(SequenceError, match="not a folder"):
+    with pytest.raises(SequenceError, match="does not exist"):
         iter_estimates(drive / "no-such-recording", odo)
     with pytest.raises(ValueError, match="prefetch"):
         iter_estimates(drive, odo, prefetch=-1)

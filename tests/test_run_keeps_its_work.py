@@ -84,7 +84,11 @@ def test_a_reused_output_folder_holds_this_runs_outputs_only(radiate_with_gnss, 
         (out / name).write_text("an earlier run's\n")
     (out / "notes.txt").write_text("mine\n")
     (out / "ground_truth.tum.bak").write_text("mine too\n")
-    assert _run(radiate_with_gnss, tiny_model, out, "--gt-time-offset", "1e12") == 0
+    assert _run(radiate_with_gnss, tiny_model, out, "--gt-time-offset", "1e12") == 1  # refused: earlier outputs
+    err = capsys.readouterr().err
+    assert "earlier run's outputs" in err and "--overwrite" in err and len(err.strip().splitlines()) == 1
+    assert (out / "estimates.csv").read_text() == "an earlier run's\n"  # nothing touched
+    assert _run(radiate_with_gnss, tiny_model, out, "--gt-time-offset", "1e12", "--overwrite") == 0
     assert sorted(p.name for p in out.iterdir()) == ["estimates.csv", "ground_truth.tum.bak", "notes.txt",
                                                      "trajectory.kitti", "trajectory.tum"]
     assert (out / "estimates.csv").read_text() != "an earlier run's\n"

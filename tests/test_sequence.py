@@ -107,8 +107,11 @@ def test_folders_without_sweeps(tmp_path):
     cv2.imwrite(str(tmp_path / "radar" / "first.png"), np.zeros((4, 20), np.uint8))
     with pytest.raises(SequenceError, match="integer timestamps, got first.png"):
         read_sequence(tmp_path)
-    with pytest.raises(SequenceError, match="not a folder"):
+    with pytest.raises(SequenceError, match="nope: does not exist; give a recording folder"):
         read_sequence(tmp_path / "nope")
+    (tmp_path / "a-file").write_text("x")
+    with pytest.raises(SequenceError, match="a-file: not a folder; give a recording folder"):
+        read_sequence(tmp_path / "a-file")
 
 
 # ---------------------------------------------------------------- z-up datasets

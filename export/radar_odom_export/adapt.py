@@ -172,9 +172,9 @@ def parse_sweeps(text: str | None) -> slice:
 
 
 def read_recording(source, topic: str | None = None, sweeps: slice = slice(None)) -> Recording:
-    """The readable sweeps ``sweeps`` of a recording folder or bag (`radar_odom.commands.run_sequence.open_recording`);
+    """The readable sweeps ``sweeps`` of a recording folder or bag (`radar_odom.io.recording.open_recording`);
     unreadable ones are counted and left out (a gap the runtime crosses)."""
-    from radar_odom.commands.run_sequence import open_recording
+    from radar_odom.io.recording import open_recording
 
     seq = open_recording(source, topic)
     scans, skipped = [], 0
@@ -277,8 +277,7 @@ def base_files(base: str, workdir: Path) -> tuple[Path, Path, dict]:
     """(checkpoint, stream ONNX file, export settings) of the model adapted from: a shipped name
     (its checkpoint and graph, exported the way it ships) or a checkpoint (exported to
     ``workdir`` with the fast search, what every shipped model uses)."""
-    from radar_odom.commands.export import shipped_export
-    from radar_odom.model_zoo import pretrained, pretrained_names
+    from radar_odom.model_zoo import pretrained, pretrained_names, shipped_export
 
     from .checkpoint import resolve_checkpoint
     from .onnx_export import export_checkpoint
@@ -342,6 +341,36 @@ def reference_kitti(rec: Recording, start: int, runs: dict, whole_poses: np.ndar
         return {}, f"reference not used: {exc}"
 
 
+def check_adapt_config(cfg: AdaptConfig, output) -> None:
+    """`ConfigError` / `OutputError` for settings `adapt` cannot work with, named as the command line names them,
+    before anything is read: a non-finite or non-positive budget or learning rate, a real share or held-out share
+    outside (0, 1), a pair span below 1 sweep, ``resume`` with no state to resume from, an output that is not an
+    .onnx file or cannot be written."""
+    from radar_odom.outputs import check_output_path
+
+    from .train import state_path
+
+    def positive(value, flag):
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+            raise ConfigError(f"{flag} must be a positive number, got {value!r}")
+
+    positive(cfg.minutes, "--minutes")
+    positive(cfg.lr, "--lr")
+    for value, flag in ((cfg.real_fraction, "--real-fraction"), (cfg.holdout_fraction, "--holdout")):
+        if not (isinstance(value, (int, float)) and 0.0 < value < 1.0):
+            raise ConfigError(f"{flag} is a share, strictly between 0 and 1, got {value!r}")
+    for value, flag in ((cfg.max_skip, "--max-skip"), (cfg.epochs, "--epochs")):
+        if not (isinstance(value, int) and value >= 1):
+            raise ConfigError(f"{flag} must be a whole number ≥ 1, got {value!r}")
+    output = Path(output)
+    if output.suffix != ".onnx":
+        raise ConfigError(f"-o {output}: the adapted model is an ONNX file; name it *.onnx")
+    check_output_path(output, "-o")
+    if cfg.resume and not state_path(output.with_suffix(".pt")).is_file():
+        raise ConfigError(f"--resume: no interrupted run to continue ({state_path(output.with_suffix('.pt'))} does "
+                          "not exist); run without --resume")
+
+
 def adapt(recordings, output, cfg: AdaptConfig, topic: str | None = None, sweeps: slice = slice(None)) -> dict:
     """Fine-tune ``cfg.base`` on ``recordings`` (folders or bags, no reference needed), write
     ``output`` (.onnx, the base's search and form), the checkpoint beside it (``.pt``) and a report
@@ -354,14 +383,10 @@ def adapt(recordings, output, cfg: AdaptConfig, topic: str | None = None, sweeps
     from .train import TrainConfig, train
 
     t0 = time.perf_counter()
-    if not cfg.minutes > 0:
-        raise ConfigError(f"minutes must be positive, got {cfg.minutes!r}")
     output = Path(output)
-    if output.suffix != ".onnx":
-        raise ConfigError(f"-o {output}: the adapted model is an ONNX file; name it *.onnx")
+    check_adapt_config(cfg, output)  # every refusal before the recordings are read and labelled (minutes)
     ckpt_out = output.with_suffix(".pt")
     report_path = output.with_suffix(".adapt.json")
-    output.parent.mkdir(parents=True, exist_ok=True)
     check_seed_policy(cfg.sim_seeds, "train")
     threads = cfg.threads or max(1, os.cpu_count() or 1)
     workdir = Path(tempfile.mkdtemp(prefix="radar-odom-adapt-"))

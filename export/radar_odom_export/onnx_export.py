@@ -214,7 +214,7 @@ def check_onnx_file(path, opset: int = DEFAULT_OPSET, max_bytes: int = MAX_BYTES
     got = onnx_opset(proto)
     if got != opset:
         raise ExportError(f"{path}: written at opset {got}, but opset {opset} was requested "
-                          "(the exporter could not reach it); choose --opset {got} or check the exporter")
+                          f"(the exporter could not reach it); choose --opset {got} or check the exporter")
     ops = op_counts(proto)
     bad = sorted(FORBIDDEN_OPS & set(ops))
     if bad:
@@ -469,7 +469,10 @@ def write_graph(module: nn.Module, example_inputs, path, metadata: dict, *, inpu
         proto.doc_string = doc_string
         onnx.save(proto, str(tmp))
         del proto
-        checked = check_onnx_file(tmp, opset)
+        try:
+            checked = check_onnx_file(tmp, opset)
+        except ExportError as exc:  # name the file asked for, not the temporary one it never became
+            raise ExportError(str(exc).replace(str(tmp), str(path))) from None
         report = ExportReport(path, form, used, checked["opset"], checked["bytes"], checked["ops"], meta,
                               0.0, notes=notes)
         if verify:

@@ -64,6 +64,16 @@ class ConfigError(RadarOdomError, ValueError):
     """An argument value the SDK cannot work with (NaN, out of range, unknown choice)."""
 
 
+class InputTypeError(RadarOdomError, TypeError):
+    """An argument of the wrong kind (a numpy array where a `RadarScan` belongs, ...); the message says what to
+    pass instead (a TypeError that is also a `RadarOdomError`)."""
+
+
+class GridError(ConfigError, MemoryError):
+    """A Cartesian grid the SDK will not allocate (thousands of pixels a side: gigabytes of sample maps); a
+    `ConfigError` that is also the MemoryError numpy would have raised, with the size and what to give instead."""
+
+
 class OutputError(RadarOdomError, OSError):
     """An output path cannot be written (e.g. ``-o`` names an existing file)."""
 

@@ -63,6 +63,9 @@ from .profiles import GridProfile
 FORMAT = "radar-odom-onnx/1"
 FORMS = ("stream", "pair", "sequence")
 DEFAULT_OPSET = 18  # the ONNX opset exports write unless asked for another (CLI ``--opset``)
+# the lowest opset an export reaches: torch's dynamo exporter writes 18 and converts down with onnx's version
+# converter, which has no adapter for Pad below 18 (`radar-odom export cart-0.8 --opset 17` fails so)
+MIN_EXPORT_OPSET = 18
 
 
 @dataclass(frozen=True)

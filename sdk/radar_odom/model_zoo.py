@@ -74,3 +74,26 @@ def default_model_name() -> str:
             "pass --model path/to/model.onnx exported with `radar-odom export`"
         )
     return DEFAULT_MODEL if DEFAULT_MODEL in names else names[0]
+
+
+def shipped_export(name: str) -> dict | None:
+    """How the shipped model ``name`` was exported, from its ONNX metadata: ``{"search":
+    "exhaustive" | "fast" | "decoupled", "form", "settings": the search's settings (dict) or
+    None}``; None when no model of that name is shipped."""
+    import json
+
+    import onnxruntime as ort
+
+    if name not in pretrained_names():
+        return None
+    so = ort.SessionOptions()
+    so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL  # metadata only: cheap
+    meta = ort.InferenceSession(pretrained(name), so, providers=["CPUExecutionProvider"]).get_modelmeta()
+    meta = dict(meta.custom_metadata_map)
+    search = json.loads(meta.get("radar_odom.search", "null"))
+    kind = (search or {}).get("kind")
+    names = {None: "exhaustive", "coarse_to_fine": "fast", "decoupled": "decoupled"}
+    if kind not in names:
+        return None  # a search this version does not know: export as asked
+    settings = None if search is None else {k: v for k, v in search.items() if k not in ("kind", "band_rotations")}
+    return {"search": names[kind], "form": meta.get("radar_odom.form", "stream"), "settings": settings}

@@ -113,6 +113,19 @@ def session_options(threads: int | None = None, enable_profiling: bool = False, 
     return so
 
 
+
+def is_torch_checkpoint(path) -> bool:
+    """True for a file that is a PyTorch checkpoint: a ``.pt`` / ``.pth`` name, or a zip archive (``torch.save``'s
+    format; an ONNX file is a protobuf and never starts with the zip signature). Read without torch."""
+    path = Path(path)
+    if path.suffix.lower() in (".pt", ".pth"):
+        return True
+    try:
+        with open(path, "rb") as f:
+            return f.read(4) == b"PK\x03\x04"
+    except OSError:
+        return False
+
 class OnnxModel:
     """An onnxruntime session over a radar-odom ONNX file, with its `ModelInfo`.
 
@@ -129,6 +142,12 @@ class OnnxModel:
             raise ModelNotFoundError(
                 f"{self.path}: no such model file; give a path to an exported .onnx or a name from "
                 "radar_odom.pretrained_names()"
+            )
+        if is_torch_checkpoint(self.path):  # onnxruntime would only say INVALID_PROTOBUF
+            raise InvalidModelError(
+                f"{self.path}: is a PyTorch checkpoint (what `radar-odom train` / `adapt` write), not an ONNX model; "
+                f"export it first: radar-odom export {self.path} (writes {self.path.with_suffix('.onnx')}), then "
+                "give that .onnx file"
             )
         try:
             self.session = ort.InferenceSession(

@@ -34,7 +34,7 @@ from collections import OrderedDict
 import cv2
 import numpy as np
 
-from .errors import ScanFormatError
+from .errors import ConfigError, GridError, ScanFormatError
 
 TWO_PI = 2.0 * math.pi
 _CACHE_SIZE = 8
@@ -168,7 +168,7 @@ def moving_sample_maps(
     if twist is not None and any(float(v) != 0.0 for v in twist):
         tau = np.asarray(azimuth_times_s, dtype=np.float64)
         if tau.shape != (ext.size - 2,):
-            raise ValueError(f"azimuth_times_s must hold one time per azimuth ({ext.size - 2}), got {tau.shape}")
+            raise ScanFormatError(f"azimuth_times_s must hold one time per azimuth ({ext.size - 2}), got {tau.shape}")
         tau_ext = np.concatenate(([tau[-1]], tau, [tau[0]]))
         phi = np.mod(np.arctan2(y_q, x_q), TWO_PI)
         for _ in range(max(int(iterations), 1)):
@@ -258,6 +258,27 @@ def clear_map_cache() -> None:
 
 
 # --------------------------------------------------------------------------- conversion
+MAX_GRID_PX = 4096  # the widest grid drawn: 8x the widest profile (cart-0.2, 512 px); its two maps take 128 MiB
+
+
+def check_grid(resolution_m: float, width_px) -> int:
+    """``width_px`` as an int where (``resolution_m`` m/px, ``width_px`` px a side) is a grid to draw; else
+    `ConfigError` (resolution not > 0, width not a whole number ≥ 2) or `GridError` (wider than `MAX_GRID_PX`:
+    its float32 sample maps alone would take gigabytes and end in numpy's MemoryError)."""
+    try:
+        ok = float(resolution_m) > 0 and math.isfinite(float(resolution_m)) and int(width_px) == width_px
+    except (TypeError, ValueError, OverflowError):
+        ok = False
+    if not ok or int(width_px) < 2:
+        raise ConfigError(f"resolution_m must be a finite number > 0 and width_px a whole number >= 2 (got "
+                          f"{resolution_m!r}, {width_px!r}); e.g. 0.4 m/px and 256 px, the cart-0.4 grid")
+    if int(width_px) > MAX_GRID_PX:
+        gib = 2 * 4 * int(width_px) ** 2 / 2**30
+        raise GridError(f"width_px={int(width_px)}: a grid that wide needs {gib:.1f} GiB of sample maps; give at most "
+                        f"{MAX_GRID_PX} px (the shipped grids are 128-512 px), or a coarser resolution_m")
+    return int(width_px)
+
+
 def polar_to_cartesian(scan, resolution_m: float, width_px: int, near_range_m: float = 0.0, out=None, *,
                        twist=None, frame_pose=None) -> np.ndarray:
     """Cartesian image float32 [W, W] of a `RadarScan` (see the module docstring for the frames).
@@ -274,6 +295,7 @@ def polar_to_cartesian(scan, resolution_m: float, width_px: int, near_range_m: f
         frame_pose: optional ``(x m, y m, yaw rad)``: draw the image in this frame, given in the
             sensor's frame at that instant, instead of the sensor's own.
     """
+    width_px = check_grid(resolution_m, width_px)
     az = _sampling_azimuths(scan)
     maps = None
     if twist is not None or frame_pose is not None:
@@ -362,6 +384,7 @@ def polar_to_cartesian_array(
     """Like `polar_to_cartesian` for bare arrays: ``power`` [A, B] (float, or uint8 scaled by
     1/255) and ``azimuths_rad`` [A] strictly increasing in [0, 2π)."""
     where = "polar_to_cartesian_array: "
+    width_px = check_grid(resolution_m, width_px)
     power = np.asarray(power)
     if power.ndim != 2 or power.shape[0] < 2 or power.shape[1] < 2:
         raise ScanFormatError(f"{where}power must be a 2-D array [azimuths, bins], got shape {power.shape}")
@@ -380,8 +403,7 @@ def polar_to_cartesian_array(
 
 def _remap(power, az_rad, range_res, range_off, resolution_m, width_px, near_range_m, out, source,
            maps=None) -> np.ndarray:
-    if not resolution_m > 0 or int(width_px) != width_px or width_px < 2:
-        raise ValueError(f"resolution_m must be > 0 and width_px an integer >= 2 (got {resolution_m}, {width_px})")
+    width_px = check_grid(resolution_m, width_px)
     if not range_res > 0:
         raise ScanFormatError(f"{source}: range_resolution_m must be > 0 (got {range_res})")
     width_px = int(width_px)
@@ -400,7 +422,7 @@ def _remap(power, az_rad, range_res, range_off, resolution_m, width_px, near_ran
         padded[:, :n_blank] = 0.0
     if out is not None:
         if out.shape != (width_px, width_px) or out.dtype != np.float32 or not out.flags.c_contiguous:
-            raise ValueError(
+            raise ConfigError(
                 f"out must be a C-contiguous float32 array of shape ({width_px}, {width_px}), "
                 f"got {out.dtype} {out.shape}"
             )

@@ -36,7 +36,7 @@ class RadarScan:
     """One sweep.
 
     Attributes:
-        timestamps_us: int64[A], UNIX µs of each azimuth row, non-decreasing.
+        timestamps_us: int64[A], UNIX µs of each azimuth row (≥ 0: not before 1970), non-decreasing.
         azimuths_rad: float32[A], in [0, 2π), strictly increasing.
         valid: bool[A], False for dropped azimuths (their ``power`` row is zeroed).
         power: float32[A, B] in [0, 1], B range bins.
@@ -184,6 +184,11 @@ class RadarScan:
             raise ScanFormatError(f"{where}azimuths_rad must lie in [0, 2π)")
         if np.any(np.diff(ts[v_idx]) < 0):
             raise ScanFormatError(f"{where}azimuth timestamps go backwards within the sweep")
+        if ts[v_idx].min() < 0:  # UNIX µs: no radar recording predates 1970; a sign or epoch error
+            raise ScanFormatError(
+                f"{where}timestamps_us holds {int(ts[v_idx].min())} µs, before 1970; give UNIX microseconds "
+                "(a UNIX time now is about 1.7e15 µs), or times from 0 for a recording without a clock"
+            )
         invalid = np.flatnonzero(~valid)
         if invalid.size:
             power[invalid] = 0.0

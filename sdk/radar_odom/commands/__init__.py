@@ -31,6 +31,36 @@ def help_formatter():
     return DefaultsHelp
 
 
+def print_warnings(command: str, caught, stream=None) -> None:
+    """Warnings caught during a command (``warnings.catch_warnings(record=True)``), one line each in the
+    command line's language (``radar-odom CMD: warning: …``), never Python's file-and-source-line form."""
+    import sys
+
+    stream = sys.stderr if stream is None else stream
+    for w in caught:
+        print(f"radar-odom {command}: warning: {w.message}", file=stream)
+
+
+def cli_warnings(command: str):
+    """A context in which every warning prints at once as one line in the command line's language
+    (``radar-odom CMD: warning: …``), not as Python's ``file:line: Category: …`` with its source line; for
+    long commands (`adapt`), where warnings collected to the end (`print_warnings`) would come too late."""
+    import contextlib
+    import sys
+    import warnings
+
+    @contextlib.contextmanager
+    def context():
+        with warnings.catch_warnings():
+            def show(message, category, filename, lineno, file=None, line=None):
+                print(f"radar-odom {command}: warning: {message}", file=sys.stderr if file is None else file)
+
+            warnings.showwarning = show
+            yield
+
+    return context()
+
+
 def threads_arg(text: str) -> int:
     """argparse ``type`` of ``--threads``: a whole number ≥ 1, at most a few per CPU
     (`radar_odom.onnx_model.check_threads`); anything else is a usage error naming the value."""
@@ -43,6 +73,8 @@ def threads_arg(text: str) -> int:
         value = int(text.strip())
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of threads (≥ 1)") from None
+    if value < 1:  # check_threads's own wording offers None, which no command line can pass
+        raise argparse.ArgumentTypeError(f"--threads must be ≥ 1, got {value} (leave it out for one per physical core)")
     try:
         return check_threads(value, "--threads")
     except ConfigError as exc:

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import argparse
 
-from . import threads_arg
+from . import cli_warnings, threads_arg
 
 HELP = "adapt a shipped model to your radar from its own recordings (no ground truth needed)"
 
@@ -78,7 +78,8 @@ def run(args) -> int:
                       vehicle_prior=not args.no_vehicle_prior, threads=args.threads, resume=args.resume, keep=args.keep,
                       info={"command": "radar-odom adapt " + " ".join(Path(r).name for r in args.recordings)
                                     + (f" --sweeps {args.sweeps}" if args.sweeps else "")})
-    report = adapt(args.recordings, out, cfg, topic=args.topic, sweeps=parse_sweeps(args.sweeps))
+    with cli_warnings("adapt"):
+        report = adapt(args.recordings, out, cfg, topic=args.topic, sweeps=parse_sweeps(args.sweeps))
     print(format_report(report))
     print(f"wrote {out}, {out.with_suffix('.pt')} and {out.with_suffix('.adapt.json')}")
     return 0

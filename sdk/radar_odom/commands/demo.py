@@ -42,11 +42,18 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
+    from .run_sequence import new_folder_removed_on_error
+
+    # OutputError (one line) when -o names a file; a failed demo leaves no empty folder behind
+    with new_folder_removed_on_error(args.output) as out:
+        _demo(args, out)
+    return 0
+
+
+def _demo(args, out) -> None:
     from ..errors import OutputError
     from .run_demo import run_demo
-    from .run_sequence import prepare_output_dir
 
-    out = prepare_output_dir(args.output)  # OutputError (one line) when -o names a file
     try:
         run_demo(
             frames=args.frames,
@@ -60,4 +67,3 @@ def run(args) -> int:
     except OSError as exc:  # a disk full, a folder made read-only meanwhile, ...
         where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
         raise OutputError(f"{where}{exc.strerror or exc}") from None
-    return 0

@@ -6,7 +6,9 @@ settings and form are read from the shipped ONNX file's metadata (``radar_odom.s
 ``radar_odom.form``) unless ``--search`` / ``--form`` say otherwise."""
 from __future__ import annotations
 
-from ..model_file import DEFAULT_OPSET
+from ..model_file import DEFAULT_OPSET, MIN_EXPORT_OPSET
+from ..model_zoo import shipped_export  # noqa: F401  (re-exported: its home is radar_odom.model_zoo)
+from ..outputs import check_output_path  # noqa: F401  (re-exported: its home is radar_odom.outputs)
 
 HELP = "export a trained checkpoint to one self-contained ONNX graph (sweep in, pose + covariance out)"
 
@@ -33,7 +35,8 @@ def register(subparsers) -> None:
                         "(default: a shipped name's own search, read from the shipped model; else exhaustive, "
                         "fast for --form sequence)")
     p.add_argument("--opset", type=int, default=DEFAULT_OPSET,
-                   help=f"ONNX opset to write; the written file is checked to have it (default: {DEFAULT_OPSET})")
+                   help=f"ONNX opset to write, {MIN_EXPORT_OPSET} or later; the written file is checked to have it "
+                        f"(default: {DEFAULT_OPSET})")
     p.add_argument("--exporter", choices=("auto", "dynamo", "torchscript"), default="auto",
                    help="torch.onnx exporter; auto: dynamo, falling back to TorchScript only if the dynamo "
                         "exporter itself fails (default: auto)")
@@ -63,6 +66,7 @@ def run(args) -> int:
         from radar_odom_export.onnx_export import export_checkpoint
     except ImportError as exc:  # torch / onnx missing: say which extra to install
         raise MissingExtraError(getattr(exc, "name", None) or "torch", "export") from exc
+    check_opset(args.opset)
     ckpt = resolve_checkpoint(args.checkpoint)
     shipped = None if Path(args.checkpoint).is_file() else shipped_export(ckpt.stem)
     form, settings = args.form, None
@@ -103,52 +107,14 @@ def run(args) -> int:
     return 0
 
 
-def check_output_path(out) -> None:
-    """`OutputError` before the export (seconds to minutes of tracing and verifying) where ``out`` cannot be
-    written: a folder in its place, a parent that cannot be created or is not writable (``-o /proc/m.onnx``
-    raised FileNotFoundError from mkstemp after the whole export)."""
-    import tempfile
-    from pathlib import Path
+def check_opset(opset: int) -> None:
+    """`ConfigError` for an ``--opset`` no export reaches: below `MIN_EXPORT_OPSET`, or above the newest this
+    onnx knows (``onnx.defs.onnx_opset_version()``); said before the checkpoint is traced."""
+    import onnx
 
-    from ..errors import OutputError
+    from ..errors import ConfigError
 
-    out = Path(out)
-    if out.is_dir():
-        raise OutputError(f"{out}: is a folder; give -o the .onnx file to write")
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OutputError(f"{out}: cannot create its folder {out.parent} ({exc.strerror or exc}); give -o a "
-                          "writable place") from None
-    try:  # the export writes a temporary file beside the output first: try that now (os.access is not
-        # enough: root may "write" /proc, which takes no new files)
-        with tempfile.TemporaryFile(prefix=f".{out.name}.", suffix=".probe", dir=out.parent):
-            pass
-    except OSError as exc:
-        raise OutputError(f"{out}: cannot write in its folder {out.parent} ({exc.strerror or exc}); give -o a "
-                          "writable place") from None
-
-
-def shipped_export(name: str) -> dict | None:
-    """How the shipped model ``name`` was exported, from its ONNX metadata: ``{"search":
-    "exhaustive" | "fast" | "decoupled", "form", "settings": the search's settings (dict) or
-    None}``; None when no model of that name is shipped."""
-    import json
-
-    import onnxruntime as ort
-
-    from ..model_zoo import pretrained, pretrained_names
-
-    if name not in pretrained_names():
-        return None
-    so = ort.SessionOptions()
-    so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL  # metadata only: cheap
-    meta = ort.InferenceSession(pretrained(name), so, providers=["CPUExecutionProvider"]).get_modelmeta()
-    meta = dict(meta.custom_metadata_map)
-    search = json.loads(meta.get("radar_odom.search", "null"))
-    kind = (search or {}).get("kind")
-    names = {None: "exhaustive", "coarse_to_fine": "fast", "decoupled": "decoupled"}
-    if kind not in names:
-        return None  # a search this version does not know: export as asked
-    settings = None if search is None else {k: v for k, v in search.items() if k not in ("kind", "band_rotations")}
-    return {"search": names[kind], "form": meta.get("radar_odom.form", "stream"), "settings": settings}
+    newest = onnx.defs.onnx_opset_version()
+    if not MIN_EXPORT_OPSET <= opset <= newest:
+        raise ConfigError(f"--opset {opset}: the export reaches opsets {MIN_EXPORT_OPSET} to {newest} (this onnx's "
+                          f"newest); give one of those (default {DEFAULT_OPSET})")

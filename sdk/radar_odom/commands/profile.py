@@ -95,7 +95,7 @@ def run(args) -> int:
 
     if args.profiles is None:
         args.profiles = default_profile_names()
-    if args.steps < 200:
+    if 1 <= args.steps < 200:
         print(f"note: --steps {args.steps} is below 200; p99 over so few steps is rough")
     run_profile(
         args.models,

@@ -1,7 +1,7 @@
 """``radar-odom run SEQ [--model M|NAME] [-o OUTDIR]``: odometry over a recorded sequence."""
 from __future__ import annotations
 
-from . import threads_arg
+from . import print_warnings, threads_arg
 
 HELP = ("odometry over a recording (Oxford layout, Boreas, MulRan, RADIATE, or a ROS 1/ROS 2 bag); writes "
         "trajectories, estimates and a plot")
@@ -35,6 +35,12 @@ def register(subparsers) -> None:
                    help="exported .onnx file, or the name of a shipped model (radar_odom.pretrained_names()); "
                         "default: cart-0.4 if shipped, else the first shipped model")
     p.add_argument("-o", "--output", default=None, help="output folder (default: ./run-<SEQ name>)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an earlier run's outputs in the output folder (without it, a folder that holds "
+                        "them is refused)")
+    p.add_argument("--keep-stamps", action="store_true",
+                   help="keep the sweep stamps as recorded (RADIATE, bags): no time base fitted on the sensor's "
+                        "period, late host stamps not put back (repair_stamps=False)")
     p.add_argument("--threads", type=threads_arg, default=None, help="onnxruntime threads (default: physical cores)")
     p.add_argument("--max-gap-s", type=float, default=None,
                    help="stop the run with an error at a larger time (s) between consecutive sweeps (default: "
@@ -54,9 +60,10 @@ def register(subparsers) -> None:
                         "next-best ratio, and leaves the reference unused where that is ambiguous")
     p.add_argument("--gt-heading-offset-deg", default="auto", metavar="auto|DEGREES",
                    help="GNSS/INS reference: the INS heading minus the vehicle's direction of travel, degrees "
-                        "counter-clockwise, one value for the drive; 'auto' (default) follows it in time (a ±5 s "
-                        "running median of the heading's offset from the GNSS track over moving samples: the INS "
-                        "re-aligns while driving) and prints its range")
+                        "counter-clockwise, one value for the drive, within ±360 (a ROS bag has no reference: "
+                        "ignored, and said); 'auto' (default) follows it in time (a ±5 s running median of the "
+                        "heading's offset from the GNSS track over moving samples: the INS re-aligns while driving) "
+                        "and prints its range")
     p.add_argument("--on-error", choices=("skip", "stop"), default="skip",
                    help="a sweep that cannot be read (corrupt file, garbage timestamps): 'skip' reports it, "
                         "bridges the trajectory across it (flagged degenerate) and exits with status 3; "
@@ -114,15 +121,23 @@ def run(args) -> int:
 
     from ..errors import GroundTruthWarning, OutputError, RadarOdomError
     from ..evaluation.report import format_metrics
+    from ..io.bag import is_bag
     from ..model_zoo import default_model_name, resolve_model
     from ..odometry.gaps import GAP, NEW_SEGMENT, NEW_SEGMENT_GAP_S
     from ..odometry.pipeline import DEFAULT_PREFETCH
-    from .run_sequence import run_sequence
+    from .run_sequence import earlier_outputs, run_sequence
 
     model_spec = args.model or default_model_name()
     model = resolve_model(model_spec)
     out = Path(args.output) if args.output else Path(f"run-{Path(args.sequence).resolve().name}")
+    earlier = earlier_outputs(out)
+    if earlier and not args.overwrite:
+        raise OutputError(f"{out} holds an earlier run's outputs ({', '.join(earlier)}); pass --overwrite to replace "
+                          "them, or -o to write elsewhere")
     bag_geometry = {k: getattr(args, k) for k in BAG_OPTIONS if getattr(args, k, None) is not None}
+    # the GNSS/INS options are checked before the recording is read (minutes for a long one)
+    time_offset_s = _offset(args.gt_time_offset, "--gt-time-offset")
+    heading_offset_deg = _offset(args.gt_heading_offset_deg, "--gt-heading-offset-deg", limit=360.0)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", GroundTruthWarning)
         try:
@@ -130,9 +145,10 @@ def run(args) -> int:
                                   plot=not args.no_plot, motion_prior=not args.no_motion_prior,
                                   on_error=args.on_error, prefetch=0 if args.no_pipeline else DEFAULT_PREFETCH,
                                   deskew=args.deskew, centre_yaw=args.centre_yaw,
-                                  gt_time_offset=_offset(args.gt_time_offset, "--gt-time-offset"),
-                                  gt_heading_offset_deg=_offset(args.gt_heading_offset_deg, "--gt-heading-offset-deg"),
-                                  topic=args.topic, bag_geometry=bag_geometry, bag_out=args.bag_out)
+                                  gt_time_offset=time_offset_s,
+                                  gt_heading_offset_deg=heading_offset_deg,
+                                  topic=args.topic, bag_geometry=bag_geometry, bag_out=args.bag_out,
+                                  repair_stamps=not args.keep_stamps)
         except RadarOdomError:
             _print_warnings(caught, sys.stderr)
             raise
@@ -141,6 +157,11 @@ def run(args) -> int:
             where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
             raise OutputError(f"{where}{exc.strerror or exc}") from None
     _print_warnings(caught, sys.stderr)
+    given = [flag for flag, value in (("--gt-time-offset", time_offset_s), ("--gt-heading-offset-deg",
+                                                                           heading_offset_deg)) if value is not None]
+    if given and is_bag(args.sequence):  # said, not silently dropped
+        print(f"radar-odom run: warning: {' and '.join(given)} ignored: a ROS bag carries no GNSS/INS reference "
+              "to align (they apply to RADIATE's GPS_IMU_Twist/)", file=sys.stderr)
     gated = sum(e.gated for e in result.estimates)
     dominated = sum(e.prior_dominated for e in result.estimates)
     prior = "motion prior off" if args.no_motion_prior else f"{gated} gated, {dominated} prior-dominated"
@@ -182,8 +203,8 @@ def run(args) -> int:
     return EXIT_OK
 
 
-def _offset(text: str, flag: str):
-    """'auto' → None (estimate it), else the number; a clear error for anything else."""
+def _offset(text: str, flag: str, limit: float | None = None):
+    """'auto' → None (estimate it), else the number; a clear error for anything else (beyond ±``limit`` too)."""
     import math
 
     from ..errors import ConfigError
@@ -196,9 +217,10 @@ def _offset(text: str, flag: str):
         raise ConfigError(f"{flag} takes 'auto' or a number, got {text!r}") from None
     if not math.isfinite(value):
         raise ConfigError(f"{flag} must be finite, got {text!r}")
+    if limit is not None and abs(value) > limit:
+        raise ConfigError(f"{flag} {text}: beyond ±{limit:g}; give an angle within a turn, or 'auto'")
     return value
 
 
 def _print_warnings(caught, stream) -> None:
-    for w in caught:
-        print(f"radar-odom run: warning: {w.message}", file=stream)
+    print_warnings("run", caught, stream)

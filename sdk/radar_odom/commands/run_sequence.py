@@ -40,6 +40,7 @@ Errors that are not one sweep's fault always stop the run: a time gap beyond ``m
 from __future__ import annotations
 
 import csv
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -50,6 +51,7 @@ from ..errors import ConfigError, OutputError, RadarOdomError, RunAborted, ScanF
 from ..evaluation.plot import plot_trajectory
 from ..evaluation.reference import gnss_reference
 from ..evaluation.report import evaluate
+from ..io.recording import open_recording  # noqa: F401  (re-exported: its home is radar_odom.io.recording)
 from ..odometry.odometer import Estimate, RadarOdometer
 from ..odometry.pipeline import DEFAULT_PREFETCH, NAME_TIME_TOLERANCE_S, Throughput, iter_estimates, throughput  # noqa: F401
 
@@ -135,6 +137,30 @@ def prepare_output_dir(out_dir) -> Path:
     return out_dir
 
 
+@contextmanager
+def new_folder_removed_on_error(out_dir):
+    """`prepare_output_dir`, yielding the folder; if the body raises and the folder was made here and is still
+    empty, it is removed again: a refused or failed run leaves no empty output folder behind."""
+    out_dir = Path(out_dir)
+    made = not out_dir.exists()
+    out_dir = prepare_output_dir(out_dir)
+    try:
+        yield out_dir
+    except BaseException:
+        if made:
+            try:
+                out_dir.rmdir()  # only an empty folder: whatever was written stays
+            except OSError:
+                pass
+        raise
+
+
+def earlier_outputs(out_dir) -> list[str]:
+    """The names of `OUTPUT_FILES` already in ``out_dir`` (an earlier run's), sorted; [] for a new folder."""
+    out_dir = Path(out_dir)
+    return sorted(n for n in OUTPUT_FILES if (out_dir / n).is_file()) if out_dir.is_dir() else []
+
+
 def write_skipped_csv(path, skipped: list[dict]) -> Path:
     """``skipped.csv``: index, timestamp (µs, as recorded in the trajectory), file, reason, message."""
     path = Path(path)
@@ -150,7 +176,8 @@ def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float | No
                  plot=True, title=None, motion_prior=True, on_error: str = "skip",
                  prefetch: int = DEFAULT_PREFETCH, deskew: bool | None = None, centre_yaw: bool | None = None,
                  gt_time_offset: float | None = None, gt_heading_offset_deg: float | None = None,
-                 topic: str | None = None, bag_geometry: dict | None = None, bag_out=None) -> RunResult:
+                 topic: str | None = None, bag_geometry: dict | None = None, bag_out=None,
+                 repair_stamps: bool = True) -> RunResult:
     """Run ``model`` (path or `RadarOdometer`) over the recording ``seq_dir``; write outputs.
 
     ``motion_prior`` (True, False or a `MotionPriorConfig`) is passed to the `RadarOdometer`
@@ -170,17 +197,27 @@ def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float | No
     ``topic`` (None: the bag's only radar topic) is read as `radar_odom.io.bag.BagSequence`
     with ``bag_geometry`` (`radar_odom.ros.msgs.PolarImageGeometry` fields). ``bag_out``: a path
     for a ROS 2 MCAP bag of ``nav_msgs/Odometry`` and TF (`radar_odom.io.bag_out`), written with the
-    other outputs (``RunResult.files["bag"]``).
+    other outputs (``RunResult.files["bag"]``). ``repair_stamps``: False keeps the sweep stamps as recorded
+    (RADIATE, bags; `radar_odom.io.recording.open_recording`).
 
     Raises `OutputError` when ``out_dir`` cannot be a folder, `RunAborted` (``on_error="stop"``,
     after writing the outputs so far), and the typed errors of `read_sequence` / `RadarOdometer`.
     """
     if on_error not in ON_ERROR:
         raise ConfigError(f"on_error must be one of {ON_ERROR}, got {on_error!r}")
-    out_dir = prepare_output_dir(out_dir)
-    seq = open_recording(seq_dir, topic, bag_geometry)
+    # what can be refused is refused before the output folder is made: a refusal leaves no empty folder behind
+    seq = open_recording(seq_dir, topic, bag_geometry, repair_stamps=repair_stamps)
     if bag_out is not None:  # what can be checked before the run, not after it
         check_bag_out(bag_out)
+    with new_folder_removed_on_error(out_dir) as out_dir:
+        return _run(seq, seq_dir, model, out_dir, threads=threads, max_gap_s=max_gap_s, show_progress=show_progress,
+                    plot=plot, title=title, motion_prior=motion_prior, on_error=on_error, prefetch=prefetch,
+                    deskew=deskew, centre_yaw=centre_yaw, reference_offsets=(gt_time_offset, gt_heading_offset_deg),
+                    bag_out=bag_out)
+
+
+def _run(seq, seq_dir, model, out_dir, *, threads, max_gap_s, show_progress, plot, title, motion_prior, on_error,
+         prefetch, deskew, centre_yaw, reference_offsets, bag_out) -> RunResult:
     extra = {k: bool(v) for k, v in (("deskew", deskew), ("centre_yaw", centre_yaw)) if v is not None}
     base = getattr(seq, "time_base", None)
     if base is not None and base.period_s is not None:
@@ -197,7 +234,7 @@ def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float | No
         stream.close()
         result = _write_outputs(odo, seq, seq_dir, out_dir, estimates, prev_ts, stream.skipped,
                                 stream.throughput(), plot, title, complete,
-                                reference_offsets=(gt_time_offset, gt_heading_offset_deg))
+                                reference_offsets=reference_offsets)
         if bag_out is not None:
             try:
                 result.files["bag"] = _write_bag(bag_out, seq, result)
@@ -238,22 +275,6 @@ def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float | No
         raise SequenceError(f"{seq_dir}: none of its {len(seq)} sweeps could be used (the first, {first['path']}: "
                             f"{first['reason']}: {first['message']}); nothing to estimate")
     return finish(complete=True)
-
-
-def open_recording(source, topic: str | None = None, bag_geometry: dict | None = None):
-    """A recording folder (`read_sequence`) or a ROS bag (`radar_odom.io.bag.open_bag`)."""
-    from ..io import read_sequence
-    from ..io.bag import is_bag, open_bag
-
-    if is_bag(source):
-        return open_bag(source, topic, **(bag_geometry or {}))
-    if topic is not None:
-        raise ConfigError(f"--topic {topic} applies to ROS bags (.bag, .mcap, .db3 or a ROS 2 bag folder with "
-                          f"metadata.yaml); {source} is not one — drop --topic to read it as a recording folder")
-    if bag_geometry:
-        raise ConfigError("the bag options (range resolution, sweep period, stamp, ...) apply to ROS bags only; "
-                          f"{source} is not a bag")
-    return read_sequence(source)
 
 
 def check_bag_out(path) -> None:

@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 
+from ..errors import ConfigError
 from ..se2 import invert, relative_from_absolute, wrap_angle
 
 KITTI_LENGTHS_M = (100, 200, 300, 400, 500, 600, 700, 800)
@@ -89,22 +90,22 @@ def kitti_metrics(gt_poses, est_poses, step: int = 4, lengths=KITTI_LENGTHS_M, p
         (``num_sequences`` counts those used). Report the step and pooling with the numbers.
 
     Raises:
-        ValueError: bad shapes or pooling, or no segment fits any sequence (the message gives
+        ConfigError (a ValueError): bad shapes or pooling, or no segment fits any sequence (the message gives
         the shortest length and the longest drive).
     """
     if pooling not in POOLINGS:
-        raise ValueError(f"pooling must be one of {POOLINGS}, got {pooling!r}")
+        raise ConfigError(f"pooling must be one of {POOLINGS}, got {pooling!r}")
     if int(step) != step or step < 1:
-        raise ValueError(f"step must be a positive integer (frames between segment starts), got {step!r}")
+        raise ConfigError(f"step must be a positive integer (frames between segment starts), got {step!r}")
     lengths = tuple(float(x) for x in lengths)
     if not lengths or min(lengths) <= 0:
-        raise ValueError(f"lengths must be positive segment lengths in metres, got {lengths}")
+        raise ConfigError(f"lengths must be positive segment lengths in metres, got {lengths}")
     gts, ests = _as_sequences(gt_poses, "gt_poses"), _as_sequences(est_poses, "est_poses")
     if len(gts) != len(ests):
-        raise ValueError(f"gt_poses holds {len(gts)} sequences but est_poses holds {len(ests)}")
+        raise ConfigError(f"gt_poses holds {len(gts)} sequences but est_poses holds {len(ests)}")
     for i, (g, e) in enumerate(zip(gts, ests)):
         if g.shape != e.shape:
-            raise ValueError(
+            raise ConfigError(
                 f"sequence {i}: gt_poses has {len(g)} poses but est_poses has {len(e)}; give one estimate per gt pose"
             )
 
@@ -112,7 +113,7 @@ def kitti_metrics(gt_poses, est_poses, step: int = 4, lengths=KITTI_LENGTHS_M, p
     used = [s for s in per_seq if len(s)]
     if not used:
         drive = max(path_lengths_m(g)[-1] for g in gts)
-        raise ValueError(
+        raise ConfigError(
             f"no KITTI segment fits: the shortest segment length is {min(lengths):g} m but the longest "
             f"drive is {drive:.1f} m of ground-truth path; pass shorter lengths=(...) or use "
             "relative_pose_errors() for short drives"
@@ -161,15 +162,15 @@ def _as_sequences(poses, name: str) -> list[np.ndarray]:
     for i, p in enumerate(seqs):
         p = np.asarray(p, dtype=np.float64)
         if p.ndim != 3 or p.shape[1:] != (3, 3) or len(p) < 2:
-            raise ValueError(
+            raise ConfigError(
                 f"{name}[{i}] must be SE(2) poses of shape [N, 3, 3] with N >= 2, got {p.shape}; "
                 "build them with radar_odom.se2.chain_relative"
             )
         if not np.all(np.isfinite(p)):
-            raise ValueError(f"{name}[{i}] holds NaN/inf poses")
+            raise ConfigError(f"{name}[{i}] holds NaN/inf poses")
         out.append(p)
     if not out:
-        raise ValueError(f"{name} is empty")
+        raise ConfigError(f"{name} is empty")
     return out
 
 
@@ -190,7 +191,7 @@ def relative_pose_errors(gt_rel, est_rel) -> dict:
     gt = _as_xyyaw(gt_rel, "gt_rel")
     est = _as_xyyaw(est_rel, "est_rel")
     if gt.shape != est.shape:
-        raise ValueError(f"gt_rel has {len(gt)} steps but est_rel has {len(est)}; give one estimate per pair")
+        raise ConfigError(f"gt_rel has {len(gt)} steps but est_rel has {len(est)}; give one estimate per pair")
     d = est - gt
     d[:, 2] = wrap_angle(d[:, 2])
     trans_m, rot_rad = np.hypot(d[:, 0], d[:, 1]), np.abs(d[:, 2])
@@ -235,7 +236,7 @@ def step_biases(gt_rel, est_rel, min_step_m: float = 1.0, straight_deg: float = 
     gt = _as_xyyaw(gt_rel, "gt_rel")
     est = _as_xyyaw(est_rel, "est_rel")
     if gt.shape != est.shape:
-        raise ValueError(f"gt_rel has {len(gt)} steps but est_rel has {len(est)}; give one estimate per pair")
+        raise ConfigError(f"gt_rel has {len(gt)} steps but est_rel has {len(est)}; give one estimate per pair")
     gt_len = np.hypot(gt[:, 0], gt[:, 1])
     moving = gt_len >= min_step_m
     straight = moving & (np.abs(np.degrees(gt[:, 2])) <= straight_deg)
@@ -283,15 +284,15 @@ def mahalanobis_sq(err, cov, jitter_diag=None) -> np.ndarray:
     e[:, 2] = wrap_angle(e[:, 2])
     c = np.asarray(cov, dtype=np.float64)
     if c.shape != (len(e), 3, 3):
-        raise ValueError(f"cov must have shape ({len(e)}, 3, 3) to match err, got {c.shape}")
+        raise ConfigError(f"cov must have shape ({len(e)}, 3, 3) to match err, got {c.shape}")
     if not np.all(np.isfinite(c)):
-        raise ValueError("cov holds NaN/inf")
+        raise ConfigError("cov holds NaN/inf")
     if jitter_diag is not None:
         c = c + np.diag(np.asarray(jitter_diag, dtype=np.float64))
     try:
         sol = np.linalg.solve(c, e[:, :, None])[:, :, 0]
     except np.linalg.LinAlgError as exc:
-        raise ValueError(f"a covariance in cov is singular ({exc}); covariances must be positive definite") from exc
+        raise ConfigError(f"a covariance in cov is singular ({exc}); covariances must be positive definite") from exc
     return np.einsum("ni,ni->n", e, sol)
 
 
@@ -305,11 +306,11 @@ def _as_xyyaw(a, name: str, allow_absolute: bool = True) -> np.ndarray:
     a = np.asarray(a, dtype=np.float64)
     if allow_absolute and a.ndim == 3 and a.shape[1:] == (3, 3):
         if not np.all(np.isfinite(a)):
-            raise ValueError(f"{name} holds NaN/inf poses")
+            raise ConfigError(f"{name} holds NaN/inf poses")
         return relative_from_absolute(a)
     if a.ndim != 2 or a.shape[1] != 3:
         also = " or [N + 1, 3, 3] (absolute poses)" if allow_absolute else ""
-        raise ValueError(f"{name} must have shape [N, 3] (x m, y m, yaw rad){also}, got {a.shape}")
+        raise ConfigError(f"{name} must have shape [N, 3] (x m, y m, yaw rad){also}, got {a.shape}")
     if not np.all(np.isfinite(a)):
-        raise ValueError(f"{name} holds NaN/inf")
+        raise ConfigError(f"{name} holds NaN/inf")
     return a

@@ -113,7 +113,8 @@ def fit_bag_time_base(path, first_azimuth_us, period_s: float):
         warnings.warn(f"{path}: sweep stamps kept as recorded ({exc})", StampWarning, stacklevel=3)
         return None
     if base.summary():
-        warnings.warn(f"{path}: {base.summary()}; open the bag with repair_stamps=False to keep them as recorded",
+        warnings.warn(f"{path}: {base.summary()}; to keep them as recorded, open the bag with repair_stamps=False "
+                      "(radar-odom run --keep-stamps)",
                       StampWarning, stacklevel=3)
     return base
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import FormatWarning
+from ..errors import ConfigError, FormatWarning
 from ..scan import RadarScan
 from ._layout import name_timestamp, to_microseconds
 from .boreas import POSES_RELPATH, load_boreas
@@ -137,7 +137,7 @@ def _load(path: Path, fmt, *, range_resolution_m, range_offset_m, num_azimuths, 
             num_bins=num_bins,
             sweep_period_s=sweep_period_s,
         )
-    raise ValueError(f"unknown radar format {fmt!r}; choose one of {', '.join(FORMATS)} or None")
+    raise ConfigError(f"unknown radar format {fmt!r}; choose one of {', '.join(FORMATS)} or None")
 
 
 def layout_evidence(path) -> tuple[str, str] | None:

@@ -315,7 +315,8 @@ def read_sequence(
     max_pose_gap_s = check_max_pose_gap_s(max_pose_gap_s)
     root = Path(seq_dir)
     if not root.is_dir():
-        raise SequenceError(f"{root}: not a folder; give a recording folder holding radar/*.png (Oxford, Boreas), "
+        what = "not a folder" if root.exists() else "does not exist"
+        raise SequenceError(f"{root}: {what}; give a recording folder holding radar/*.png (Oxford, Boreas), "
                             "polar/*.png or polar_oxford_form/*.png (MulRan) or Navtech_Polar/*.png (RADIATE), or a "
                             "ROS bag (.bag, .mcap, .db3 or a ROS 2 bag folder) with --topic")
     if format is None:
@@ -323,7 +324,7 @@ def read_sequence(
     elif format in FORMATS:
         fmt, folder = format, _sweep_folder(root, format)
     else:
-        raise ValueError(f"unknown radar format {format!r}; choose one of {', '.join(FORMATS)} or None")
+        raise ConfigError(f"unknown radar format {format!r}; choose one of {', '.join(FORMATS)} or None")
     if not folder.is_dir():
         raise SequenceError(f"{root}: no {folder.name}/ folder of radar PNGs for format {fmt!r}")
     if fmt == "radiate":
@@ -335,7 +336,8 @@ def read_sequence(
             if load_kwargs.get("sweep_period_s") is None:  # the azimuths spread over the fitted period too
                 load_kwargs = {**load_kwargs, "sweep_period_s": base.period_s}
             if base.summary():
-                warnings.warn(f"{root}: {base.summary()}; read with repair_stamps=False to keep them as recorded",
+                warnings.warn(f"{root}: {base.summary()}; to keep them as recorded, read with repair_stamps=False "
+                              "(radar-odom run --keep-stamps)",
                               StampWarning, stacklevel=2)
         return Sequence(root, fmt, paths, stamps, None, load_kwargs, corrections, base)
     paths, stamps = _sweep_files(folder)

@@ -38,10 +38,16 @@ def run_profile(
 ) -> dict:
     """Profile every model (see `resolve_models`), write ``profile.json`` and ``profile.md`` in
     ``out_dir``, and return the report dictionary."""
+    from ..errors import ConfigError
     from ..onnx_model import physical_cores
 
-    if steps < 1 or warmup < 0:
-        raise ValueError("steps must be >= 1 and warmup >= 0")
+    counts = {"steps": (steps, 1), "warmup": (warmup, 0), "reference_steps": (reference_steps, 0),
+              "operator_steps": (operator_steps, 0), "rss_steps": (rss_steps, 0), "file_sweeps": (file_sweeps, 0)}
+    for name, (value, least) in counts.items():  # named as `radar-odom profile` names them
+        if isinstance(value, bool) or not isinstance(value, int) or value < least:
+            flag = "--" + name.replace("_", "-")
+            raise ConfigError(f"{flag} must be a whole number ≥ {least}, got {value!r}"
+                              + (" (a profile times at least one step)" if name == "steps" else ""))
     threads = int(threads or physical_cores())
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -26,11 +26,14 @@ def config_number(value, name: str, low: float | None = None, high: float | None
 
 
 def stream_timestamp(value, source: str) -> int:
-    """An integer µs timestamp within int64, else `StreamError`."""
+    """An integer µs timestamp within int64, not before 1970 (negative), else `StreamError`."""
     try:
         out = int(value)
     except (TypeError, ValueError, OverflowError):
         raise StreamError(f"{source}: timestamp {value!r} is not an integer number of µs") from None
     if not -(2**63) <= out < 2**63:
         raise StreamError(f"{source}: timestamp {out} µs is beyond the int64 range")
+    if out < 0:
+        raise StreamError(f"{source}: timestamp {out} µs is before 1970; give UNIX microseconds (a UNIX time now is "
+                          "about 1.7e15 µs), or times from 0 for a recording without a clock")
     return out

@@ -93,7 +93,7 @@ from collections import deque
 
 import numpy as np
 
-from ..errors import ConfigError, ModelMismatchError
+from ..errors import ConfigError, InputTypeError, ModelMismatchError
 from ..onnx_model import OnnxModel
 from ..scan import RadarScan
 from ..se2 import invert, se2, to_xyyaw, turn_frame
@@ -119,6 +119,9 @@ from .sweep_input import SweepMotion, deskew_twist, graph_input, twists_differ
 # De-skew is on by default only where it measured better on real drives (README, real-drive table)
 DESKEW_DEFAULT = False
 CENTRE_YAW_DEFAULT = False  # `radar_odom.odometry.centring`; None in the constructor reads this
+# what step()/prepare() say to a caller passing an array: how to make the sweep they take
+SCAN_HINT = ("wrap the sweep first: RadarScan.from_arrays(timestamps_us, azimuths_rad, power, "
+             "range_resolution_m=...) for arrays, radar_odom.load_scan(path) for a file")
 DESKEW_STEPS = 4  # estimates averaged into the de-skew velocity (1 s at 4 Hz)
 
 
@@ -230,6 +233,7 @@ class RadarOdometer:
         self._recent_motion: deque = deque(maxlen=DESKEW_STEPS)  # (relative pose, interval s)
         self._forget_motion()
         self._range_scale: tuple | None = None  # (range resolution m, offset m) of the stream's sweeps
+        self._azimuths: int | None = None  # azimuth rows of the stream's sweeps (its first one's)
 
     def _forget_motion(self) -> None:
         """Forget how the stream moved (a new stream, or a new segment after a stamp jump)."""
@@ -262,7 +266,7 @@ class RadarOdometer:
         `radar_odom.odometry.pipeline.iter_estimates` does). Reads only the odometer's configuration.
         """
         if not isinstance(scan, RadarScan):
-            raise TypeError(f"prepare() takes a RadarScan, got {type(scan).__name__}")
+            raise InputTypeError(f"prepare() takes a RadarScan, got {type(scan).__name__}; {SCAN_HINT}")
         try:
             self._check_geometry(scan)
         except ModelMismatchError:  # raised by step(), in the stream's order
@@ -293,7 +297,7 @@ class RadarOdometer:
             prepared = scan if scan.ready and scan.owner is self else None
             scan = scan.scan
         if not isinstance(scan, RadarScan):
-            raise TypeError(f"step() takes a RadarScan, got {type(scan).__name__}")
+            raise InputTypeError(f"step() takes a RadarScan, got {type(scan).__name__}; {SCAN_HINT}")
         odometry = ExternalOdometry.coerce(odometry)
         with self._lock:
             return self._step(scan, odometry, prepared)
@@ -333,8 +337,9 @@ class RadarOdometer:
         ts = scan.timestamp_us
         first = self._check_time(ts, scan.source)
         self._check_range_scale(scan, first)
-        # sweep checks: can the model read it at all
-        problem = self.sweep_problem(scan) if prepared is None else prepared.problem
+        # sweep checks: can the model read it at all (the stream's azimuth rows first: the others judge it alone)
+        self._azimuths, problem = stream_time.azimuth_count(scan, None if first else self._azimuths)
+        problem = problem or (self.sweep_problem(scan) if prepared is None else prepared.problem)
         if first:
             return self._start_stream(scan, prepared, problem, ts)
         dt_s = (ts - self._stamps[-1]) * 1e-6

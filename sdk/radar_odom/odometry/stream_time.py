@@ -42,3 +42,21 @@ def range_bins(scan: RadarScan, stream_bins: tuple | None) -> tuple[float, float
             f"{stream_bins[0]} m from {stream_bins[1]} m; a radar does not change them mid-recording "
             "— check the reader's range resolution, or call reset() to start a new stream")
     return bins
+
+
+AZIMUTH_COUNT = "azimuth_count"  # the degenerate reason of a sweep whose azimuth count is not the stream's
+MAX_AZIMUTH_COUNT_CHANGE = 0.05  # a few rows more or fewer (a dropped packet) are matched as they are
+
+
+def azimuth_count(scan: RadarScan, stream_azimuths: int | None) -> tuple[int, str | None]:
+    """(the stream's azimuth count, `AZIMUTH_COUNT` where ``scan``'s differs from it by more than
+    `MAX_AZIMUTH_COUNT_CHANGE`, else None). ``stream_azimuths``: the count of the stream's first sweep (None: a new
+    stream, which takes ``scan``'s). A radar turns out the same rows every sweep; a sweep with half of them (a
+    reader or driver cutting it short) spread over the whole turn matches a full one confidently and wrongly
+    (issue 42 reports −0.73 m for a 2.2 m step), so it is flagged degenerate rather than matched."""
+    count = int(scan.num_azimuths)
+    if stream_azimuths is None:
+        return count, None
+    if abs(count - int(stream_azimuths)) > MAX_AZIMUTH_COUNT_CHANGE * int(stream_azimuths):
+        return int(stream_azimuths), AZIMUTH_COUNT
+    return int(stream_azimuths), None

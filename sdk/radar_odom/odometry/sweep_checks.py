@@ -2,7 +2,8 @@
 
 `sweep_problem` says why a sweep cannot be matched (too few valid rows, partial coverage,
 saturated, blank, noise only); `check_sweep_geometry` refuses a sweep the model cannot take
-(too short for a Cartesian model's disc, another geometry for a polar one); `model_region_m`
+(too short for a Cartesian model's disc, range bins no radar has for it (`implausible_range_bins`),
+another geometry for a polar one); `model_region_m`
 is the range band a model sees. Pure functions of the sweep and the model's `ModelInfo`: the
 odometer, `match_sequence` and the tooling share them.
 """
@@ -15,6 +16,12 @@ from ..onnx_model import GEOMETRY_KEYS
 from ..scan import RadarScan
 
 MIN_COVERAGE = 0.75
+# a sweep's range bins may be this many times finer or coarser than those the model was trained on, no more: real
+# radars span 4x (Oxford 0.0432 m, RADIATE 0.1736 m), a wrong --range-resolution-m is typically 10x or more off
+MAX_RESOLUTION_RATIO = 8.0
+# the range of a sweep's column 0 is a calibration of decimetres (Boreas −0.31 m); below this it is a wrong setting
+MIN_RANGE_OFFSET_M = -5.0
+MAX_OFFSET_SHARE = 0.5  # a sweep starting beyond half the correlated disc's radius leaves 3/4 of its area empty
 NOISE_STRUCTURE = 0.2
 _MAX_STAT_BINS = 256  # range bins sampled for the statistics (a stride over the model's region)
 
@@ -130,10 +137,40 @@ def model_region_m(info) -> tuple[float, float]:
     return float(p.near_range_m), float(geom["range_offset_m"]) + nb * float(geom["range_resolution_m"])
 
 
+def implausible_range_bins(range_resolution_m: float, range_offset_m: float, info) -> str | None:
+    """Why range bins of ``range_resolution_m`` (m per bin) from ``range_offset_m`` (m, the range of column 0)
+    cannot be a radar's for the Cartesian model ``info`` (a `ModelInfo`), or None: a resolution more than
+    `MAX_RESOLUTION_RATIO` times finer or coarser than the model's sweeps' (its ``sweep_geometry``, where it
+    has one), an offset below `MIN_RANGE_OFFSET_M` (ranges below zero), or one beyond `MAX_OFFSET_SHARE` of
+    the radius of the disc the model correlates (``support_radius_m``: most of its area would be missing).
+    The reach (the disc beyond the last bin) is `check_sweep_geometry`'s own test."""
+    p = info.profile
+    want = (info.sweep_geometry or {}).get("range_resolution_m")
+    if want:
+        ratio = float(range_resolution_m) / float(want)
+        if not 1.0 / MAX_RESOLUTION_RATIO <= ratio <= MAX_RESOLUTION_RATIO:
+            return (f"range bins of {range_resolution_m:g} m are {ratio:.3g}x the {float(want):g} m of the sweeps the "
+                    f"model was made for (at most {MAX_RESOLUTION_RATIO:g}x either way: Oxford 0.0432 m, RADIATE "
+                    "0.1736 m)")
+    if range_offset_m < MIN_RANGE_OFFSET_M:
+        return (f"column 0 lies at {range_offset_m:g} m, below {MIN_RANGE_OFFSET_M:g} m (a radar's first bin is "
+                "within decimetres of its antenna: Boreas −0.31 m)")
+    if range_offset_m >= MAX_OFFSET_SHARE * float(p.support_radius_m):
+        return (f"column 0 lies at {range_offset_m:g} m, beyond half the radius of the disc the model correlates "
+                f"({float(p.support_radius_m):.2f} m): most of the disc would be missing")
+    return None
+
+
 def check_sweep_geometry(scan: RadarScan, info, model_name: str = "the model") -> None:
     """`ModelMismatchError` unless the model described by ``info`` (a `ModelInfo`) can take
     ``scan`` (see the module docstring); ``model_name`` is used in the message."""
     if info.profile.input_kind != "polar":
+        why = implausible_range_bins(scan.range_resolution_m, scan.range_offset_m, info)
+        if why is not None:
+            raise ModelMismatchError(
+                f"{scan.source}: {why}; check the range resolution and offset the sweep was read with "
+                "(--range-resolution-m / --range-offset-m for a bag, range_resolution_m= / range_offset_m= in "
+                "RadarScan.from_arrays or load_scan)")
         need = info.profile.support_radius_m
         have = scan.max_range_m
         if have < need - 1e-6:
