@@ -74,7 +74,7 @@ def simulator_class(frozen: bool = False, mirror: bool = False, still_at_s: floa
     ``mirror``-ed world (world, traffic and ego path reflected y → −y; the radar's scan direction kept)
     or ``still`` at drive time ``still_at_s`` (frozen there for every sweep; fresh noise each sweep)."""
     from radar_odom.sim.sensor import Points, Segments
-    from radar_odom.sim.simulator import _STREAM_SWEEP, CULL_MARGIN_M, Simulator
+    from radar_odom.sim.simulator import Simulator
 
     class Variant(Simulator):
         def drive_time_s(self, timestamps_us):
@@ -90,26 +90,15 @@ def simulator_class(frozen: bool = False, mirror: bool = False, still_at_s: floa
             flip = np.diag([1.0, -1.0, 1.0])  # a pose reflected: y and the heading change sign
             return flip @ pose @ flip
 
-        def render(self, k):
+        def scene(self, k):
+            orig, yaw, segments, points = super().scene(k)
             if not mirror:
-                return super().render(k)
-            ts = self.timestamps_us(k)  # Simulator.render with every position reflected
-            t = self.drive_time_s(ts)
-            orig, yaw = self.drive.pose_at(t)
-            centre = orig[len(orig) // 2]
-            radius = self.config.sensor.max_range_m + CULL_MARGIN_M
-            seg_near, pts_near = self.world.near(centre, radius)
-            w = self.world
-            segments = [Segments(reflect_y(w.seg_a_m[seg_near]), reflect_y(w.seg_b_m[seg_near]),
-                                 w.seg_refl_db[seg_near], w.seg_trans_db[seg_near], moving=False)]
-            a, b, refl, trans = self.traffic.box_segments(self.drive, t, centre, radius)
-            segments.append(Segments(reflect_y(a), reflect_y(b), refl, trans, moving=True))
-            points = [Points(reflect_y(w.pts_m[pts_near]), w.pts_refl_db[pts_near], moving=False)]
-            ped_xy, ped_refl = self.traffic.pedestrian_points(self.drive, t, centre, radius)
-            points.append(Points(reflect_y(ped_xy), ped_refl, moving=True))
-            rng = np.random.default_rng([self.seed, _STREAM_SWEEP, k])
-            power, label, valid = self.renderer.render(reflect_y(orig), -np.asarray(yaw), segments, points, rng)
-            return power, label, valid, ts
+                return orig, yaw, segments, points
+            # every position reflected y → −y, headings negated
+            return (reflect_y(orig), -np.asarray(yaw),
+                    [Segments(reflect_y(g.a), reflect_y(g.b), g.refl_db, g.trans_db, moving=g.moving)
+                     for g in segments],
+                    [Points(reflect_y(q.xy), q.refl_db, moving=q.moving) for q in points])
 
     return Variant
 

@@ -102,10 +102,10 @@ class Simulator:
         return se2(float(xy[0]), float(xy[1]), float(yaw))
 
     # ---------------------------------------------------------------- rendering
-    def render(self, k: int):
-        """(power uint8[A, B], label uint8[A, B], valid bool[A], timestamps int64[A]) of sweep k."""
-        ts = self.timestamps_us(k)
-        t = self.drive_time_s(ts)
+    def scene(self, k: int):
+        """What sweep ``k`` sees: (ego positions float64[A, 2] and headings float64[A] at each azimuth's
+        time, [static, moving] `Segments`, [static, moving] `Points`), in world metres."""
+        t = self.drive_time_s(self.timestamps_us(k))
         orig, yaw = self.drive.pose_at(t)
         centre = orig[len(orig) // 2]
         radius = self.config.sensor.max_range_m + CULL_MARGIN_M
@@ -118,9 +118,14 @@ class Simulator:
         points = [Points(w.pts_m[pts_near], w.pts_refl_db[pts_near], moving=False)]
         ped_xy, ped_refl = self.traffic.pedestrian_points(self.drive, t, centre, radius)
         points.append(Points(ped_xy, ped_refl, moving=True))
+        return orig, yaw, segments, points
+
+    def render(self, k: int):
+        """(power uint8[A, B], label uint8[A, B], valid bool[A], timestamps int64[A]) of sweep k."""
+        orig, yaw, segments, points = self.scene(k)
         rng = np.random.default_rng([self.seed, _STREAM_SWEEP, k])
         power, label, valid = self.renderer.render(orig, yaw, segments, points, rng)
-        return power, label, valid, ts
+        return power, label, valid, self.timestamps_us(k)
 
     def frame(self, k: int, previous_pose_mid: np.ndarray | None = None) -> SimFrame:
         """Sweep ``k`` as a `SimFrame` (``pose_rel`` relative to sweep k-1; None for k = 0)."""
