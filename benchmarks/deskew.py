@@ -36,7 +36,6 @@ import argparse
 import math
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -53,7 +52,7 @@ def straight_scans(scenario: str, speed_mps: float, seed: int, frames: int, froz
     """(scans, true relative poses float64[frames − 1, 3]) of a simulated straight road at a constant
     speed; ``frozen``: every azimuth drawn from the ego pose at the sweep's mid time (no motion during a
     sweep, traffic frozen too; the same timestamps, noise and truth), the distortion-free floor."""
-    from radar_odom.sim.scenarios import get_scenario
+    from radar_odom.sim.scenarios import steady_scenario
     from radar_odom.sim.simulator import Simulator
 
     class FrozenSimulator(Simulator):
@@ -61,9 +60,7 @@ def straight_scans(scenario: str, speed_mps: float, seed: int, frames: int, froz
             t = super().drive_time_s(timestamps_us)
             return np.full_like(t, t.mean()) if t.ndim else t
 
-    base = get_scenario(scenario)
-    drive = replace(base.drive, constant_speed_mps=float(speed_mps))
-    frames_ = list((FrozenSimulator if frozen else Simulator)(seed, frames, replace(base, drive=drive)))
+    frames_ = list((FrozenSimulator if frozen else Simulator)(seed, frames, steady_scenario(scenario, speed_mps)))
     return [f.scan for f in frames_], np.array([f.pose_rel for f in frames_[1:]])
 
 

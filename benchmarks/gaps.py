@@ -37,7 +37,7 @@ import argparse
 import math
 import sys
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -70,15 +70,11 @@ def parse_seeds(text: str) -> list[int]:
 def _hooked_drive(seed: int, frames: int, speed_mps: float, rate_deg: float = 0.0, ramp_m: float | None = None):
     """(scans, absolute poses float64[N, 3, 3]) of a drive on the simulator's test hooks."""
     from radar_odom.se2 import chain_relative
-    from radar_odom.sim.scenarios import get_scenario
+    from radar_odom.sim.scenarios import steady_scenario
     from radar_odom.sim.simulator import simulate_drive
 
-    base = get_scenario("urban")
-    curvature = math.radians(rate_deg) / (speed_mps * PERIOD_S)
-    drive = replace(base.drive, constant_speed_mps=speed_mps, constant_curvature_per_m=curvature)
-    if ramp_m is not None:
-        drive = replace(drive, curvature_ramp_m=ramp_m)
-    frames_ = list(simulate_drive(seed, frames, replace(base, drive=drive)))
+    extra = {} if ramp_m is None else {"curvature_ramp_m": ramp_m}
+    frames_ = list(simulate_drive(seed, frames, steady_scenario("urban", speed_mps, rate_deg, **extra)))
     return [f.scan for f in frames_], chain_relative(np.array([f.pose_rel for f in frames_[1:]]))
 
 

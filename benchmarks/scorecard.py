@@ -57,7 +57,6 @@ import sys
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -93,13 +92,9 @@ def draw_seeds(count: int, rng: random.Random) -> list[int]:
 
 def bend_scenario(rate_deg: float, scenario: str = "urban"):
     """The simulator scenario of a steady drive at `SPEED_MPS` bending ``rate_deg`` per sweep (0: straight)."""
-    from radar_odom.sim.config import SimConfig
-    from radar_odom.sim.scenarios import get_scenario
+    from radar_odom.sim.scenarios import steady_scenario
 
-    base = get_scenario(scenario)
-    period_s = SimConfig().sensor.period_us * 1e-6
-    curvature = math.radians(rate_deg) / (SPEED_MPS * period_s)
-    return replace(base, drive=replace(base.drive, constant_speed_mps=SPEED_MPS, constant_curvature_per_m=curvature))
+    return steady_scenario(scenario, SPEED_MPS, rate_deg)
 
 
 def _write(job) -> str:

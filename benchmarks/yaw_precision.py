@@ -34,7 +34,6 @@ import argparse
 import math
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -50,15 +49,10 @@ RAMP_PAIRS = 4  # pairs at the start of a bend drive that are still on the lead-
 def curve_scans(rate_deg: float, scenario: str, frames: int, seed: int):
     """(scans, true relative poses float64[frames − 1, 3]) of a simulated drive on a steady bend of
     ``rate_deg`` per sweep at `SPEED_MPS` (positive: turning right, +yaw)."""
-    from radar_odom.sim.config import SimConfig
-    from radar_odom.sim.scenarios import get_scenario
+    from radar_odom.sim.scenarios import steady_scenario
     from radar_odom.sim.simulator import simulate_drive
 
-    base = get_scenario(scenario)
-    period_s = SimConfig().sensor.period_us * 1e-6
-    curvature = math.radians(rate_deg) / (SPEED_MPS * period_s)
-    drive = replace(base.drive, constant_speed_mps=SPEED_MPS, constant_curvature_per_m=curvature)
-    frames_ = list(simulate_drive(seed, frames, replace(base, drive=drive)))
+    frames_ = list(simulate_drive(seed, frames, steady_scenario(scenario, SPEED_MPS, rate_deg)))
     return [f.scan for f in frames_], np.array([f.pose_rel for f in frames_[1:]])
 
 

@@ -76,3 +76,24 @@ def get_scenario(scenario: str | Scenario) -> Scenario:
         raise SimConfigError(
             f"unknown scenario {scenario!r}; choose one of {', '.join(SCENARIOS)}"
         ) from None
+
+
+def steady_scenario(scenario: str | Scenario = "urban", speed_mps: float = 10.0, yaw_deg_per_sweep: float = 0.0,
+                    **drive_overrides) -> Scenario:
+    """``scenario``'s world driven at exactly ``speed_mps`` on a straight road that, after its lead-in,
+    bends by ``yaw_deg_per_sweep`` each sweep (positive: turning right, +yaw; 0: straight), through the
+    drive's test hooks (`DriveConfig.constant_speed_mps`, ``constant_curvature_per_m``) — the steady
+    drives the benchmarks measure yaw precision, de-skew and gaps on. ``drive_overrides``: more
+    `DriveConfig` fields (e.g. ``curvature_ramp_m``)."""
+    import math
+    from dataclasses import replace
+
+    from .config import SimConfig
+
+    base = get_scenario(scenario)
+    period_s = SimConfig().sensor.period_us * 1e-6
+    curvature = math.radians(float(yaw_deg_per_sweep)) / (float(speed_mps) * period_s)
+    drive = replace(base.drive, constant_speed_mps=float(speed_mps), constant_curvature_per_m=curvature,
+                    **drive_overrides)
+    return replace(base, drive=drive)
+
