@@ -163,6 +163,7 @@ def test_profile_refuses_counts_it_cannot_use(flag, value, tmp_path, capsys):
 
 
 # ------------------------------------------------------------------------------------------- export
+@pytest.mark.torch
 @needs_torch
 @pytest.mark.parametrize("opset", ["5", "17", "1000"])
 def test_export_refuses_an_opset_it_cannot_reach_before_tracing(opset, tmp_path, capsys):
@@ -173,6 +174,7 @@ def test_export_refuses_an_opset_it_cannot_reach_before_tracing(opset, tmp_path,
     assert not out.exists() and list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.torch
 @needs_torch
 def test_the_opset_check_names_the_file_asked_for(tmp_path):
     """The check after writing names the output and the opset it got (was: the temporary file and `{got}`)."""
@@ -193,6 +195,7 @@ def test_the_opset_check_names_the_file_asked_for(tmp_path):
 
 
 # -------------------------------------------------------------------------------------------- adapt
+@pytest.mark.torch
 @needs_torch
 @pytest.mark.parametrize("extra, expect", [
     (["--real-fraction", "2"], "--real-fraction is a share"),
@@ -215,6 +218,7 @@ def test_adapt_refuses_settings_before_reading_the_recording(extra, expect, reco
     assert expect in one_error_line(capsys, "adapt")
 
 
+@pytest.mark.torch
 @needs_torch
 @pytest.mark.parametrize("where", ["under a file", "/proc"])
 def test_adapt_refuses_an_output_it_cannot_write(where, recording, tmp_path, capsys, monkeypatch):
