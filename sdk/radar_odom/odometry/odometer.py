@@ -543,7 +543,7 @@ class RadarOdometer:
         if readings is None:
             return None
         crossed = [turn_frame(*uncentre(*m, a_ref, 0.0), mount) for m in readings]
-        new_ref = x if self.info.form == "pair" else self._run_first(x)
+        new_ref = self._run_first(x)
         if not np.all(np.isfinite(new_ref)):
             return None
         tol_m, tol_rad, sharp_m = gaps.agreement(self.profile)
@@ -567,7 +567,7 @@ class RadarOdometer:
         residual, residual_cov, new_ref = out
         pose, cov = uncentre(residual, residual_cov, a_ref, a_new)
         if abs(a_new) > MAX_TURN_RAD:
-            new_ref, a_new = (x if self.info.form == "pair" else self._run_first(x)), 0.0
+            new_ref, a_new = self._run_first(x), 0.0
             if not np.all(np.isfinite(new_ref)):
                 return None
         return pose, cov, new_ref, a_new
