@@ -541,7 +541,7 @@ def report(record: dict, markdown: Path | None, rng: np.random.Generator) -> int
         ratio = float(np.median(tc) / np.median(tp))
         spread = float(np.std([np.median(rng.choice(tc, tc.size)) / np.median(rng.choice(tp, tp.size))
                                for _ in range(400)], ddof=1))
-        v = "**worse**" if ratio - 1.0 > spread else ("better" if 1.0 - ratio > spread else "=")
+        v = verdict((1.0, 0.0, True), (ratio, spread, True))  # the previous graph is the ratio's unit
         verdicts.append((name, "step time", v))
         lines += [f"| step time: candidate / previous graph (interleaved, 2 threads) | 1 ({1e3 * np.median(tp):.1f} ms)"
                   f" | {ratio:.3f} ± {spread:.2g} ({1e3 * np.median(tc):.1f} ms) | {ratio - 1:+.3f} | {v} |", ""]
