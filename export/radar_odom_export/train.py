@@ -77,6 +77,7 @@ class TrainConfig:
     supervised_masks: bool = False
     epochs: int = 30
     minutes: float | None = None  # wall-clock budget for this invocation (stops mid-epoch)
+    started: float | None = None  # time.perf_counter() the budget counts from (None: when `train` starts)
     lr: float = 1e-3
     lr_decay: float = 0.9  # multiplicative, per epoch
     batch: int = 8
@@ -410,7 +411,9 @@ def train(
     torch.manual_seed(cfg.seed)  # same initial weights on every rank (DDP also broadcasts them)
 
     t_start = time.perf_counter()
-    deadline = None if cfg.minutes is None else t_start + 60.0 * cfg.minutes
+    # the budget counts from the command's start (`run_from_args` sets ``started``): the drives it
+    # simulated first are part of the time the user was promised
+    deadline = None if cfg.minutes is None else (cfg.started or t_start) + 60.0 * cfg.minutes
     with_labels = cfg.objective == "masks"
     train_set = PairDataset(train_drives, augment=cfg.augment, with_labels=with_labels, seed=cfg.seed)
     if real_drives:
@@ -486,6 +489,7 @@ def train(
         history, steps_log = list(st["history"]), [list(x) for x in st["steps"]]
         wall_before = float(st["wall_s"])
         _set_rng_state(st["rng"])
+        record["best_val_loss"] = next((h["val_loss"] for h in history if h["epoch"] == best_epoch), math.nan)
 
     net = objective
     if d.active:
@@ -564,6 +568,8 @@ def train(
             improved = math.isfinite(val) and val < best_val
             if improved:
                 best_val, best_epoch = val, epoch + 1
+        if improved:  # the trained objective's value at the kept epoch, said beside the pose error
+            record["best_val_loss"] = stats["loss"]
         if d.main:
             print(
                 f"epoch {epoch + 1}: train {history[-1]['train_loss']:.4g}  val {stats['loss']:.4g}  "
@@ -694,6 +700,42 @@ def _plot(output, history: list, steps_log: list) -> Path | None:
     return out
 
 
+# ----------------------------------------------------------------------------- what the command says
+def budget_line(minutes: float | None, resume: bool = False, now: float | None = None) -> str:
+    """The line `radar-odom train` starts with: the budget and the wall-clock time it ends at."""
+    if minutes is None:
+        return "train: no time budget (--minutes 0): runs until --epochs are done"
+    end = time.localtime((time.time() if now is None else now) + 60.0 * minutes)
+    return (f"train: {minutes:g}-minute budget (--minutes), simulating drives included: stops by "
+            f"{time.strftime('%H:%M:%S', end)} local time, validates and saves; "
+            + ("continuing the saved run" if resume else "the same command with --resume continues it"))
+
+
+def final_line(output, summary: dict, profile: GridProfile, budget_minutes: float | None = None) -> str:
+    """The command's last line: which number is the pose error (what picks the best epoch, grid
+    cells²) and which the validation loss (the trained objective), with units, and why it stopped."""
+    objective = summary.get("objective", "pose")
+    best, epoch = summary.get("best_val", float("nan")), summary.get("best_epoch")
+    steps, wall = summary.get("steps", 0), summary.get("wall_s", 0.0) / 60
+    cell = (f"1 cell = {profile.resolution_m:g} m in x and y, {math.degrees(profile.rotation_step_rad):g}° in yaw")
+    if objective == "masks":
+        what = f"best validation loss {best:.4g} (mask BCE against the static labels; epoch {epoch})"
+    elif objective in TRAINING_FREE:
+        what = (f"validation pose error {best:.4g} cells² (mean squared pose error in grid cells, {cell}); "
+                f"nothing trained ({objective} masking)")
+    else:
+        loss = summary.get("best_val_loss", float("nan"))
+        what = (f"best validation pose error {best:.4g} cells² at epoch {epoch} (mean over the validation pairs "
+                f"of the squared pose error in grid cells, {cell}: {math.sqrt(best):.2g} cells RMS), "
+                f"validation loss {loss:.4g} there ({summary.get('pose_loss', 'mse')}, the trained objective)"
+                if math.isfinite(best) else "no validation pose error (no validation pairs)")
+    why = ""
+    if summary.get("stopped_by_budget"):
+        why = f"; stopped by the {budget_minutes:g}-minute budget: add --resume to continue"
+    return (f"wrote {output}: {what}; {steps} steps, {wall:.1f} min{why}. "
+            f"Next: radar-odom export {output} (calibrates its covariance first)")
+
+
 # ----------------------------------------------------------------------------- command line
 def resolve_profile(
     text: str, unet_base_channels: int | None = None, unet_depth: int | None = None, beta_pose: float | None = None
@@ -745,8 +787,14 @@ def run_from_args(args) -> dict:
         split_folders,
     )
 
+    started = time.perf_counter()
+    minutes = None if not args.minutes else float(args.minutes)
+    if args.minutes is not None and not (math.isfinite(args.minutes) and args.minutes >= 0):
+        raise DataSpecError(f"--minutes {args.minutes}: give a budget in minutes ≥ 0 (0: no budget, --epochs alone)")
     d = init_distributed()
     try:
+        if d.main:
+            print(budget_line(minutes, resume=args.resume), flush=True)
         profile = resolve_profile(
             args.profile, args.unet_base_channels, args.unet_depth, getattr(args, "beta_pose", None)
         )
@@ -809,7 +857,8 @@ def run_from_args(args) -> dict:
             masking=args.masking,
             supervised_masks=labels,
             epochs=args.epochs,
-            minutes=args.minutes,
+            minutes=minutes,
+            started=started,
             lr=args.lr,
             lr_decay=args.lr_decay,
             batch=args.batch,
@@ -835,11 +884,7 @@ def run_from_args(args) -> dict:
                         real_fraction=args.real_fraction)
         summary = train(cfg, train_drives, val_drives, d, real_drives=real)
         if d.main:
-            print(
-                f"wrote {cfg.output}: best validation loss {summary.get('best_val', float('nan')):.4g} "
-                f"(epoch {summary.get('best_epoch')}), {summary.get('steps', 0)} steps, "
-                f"{summary.get('wall_s', 0.0) / 60:.1f} min"
-            )
+            print(final_line(cfg.output, summary, profile, budget_minutes=cfg.minutes))
         return summary
     finally:
         shutdown_distributed(d)

@@ -5,6 +5,8 @@ import argparse
 
 from . import threads_arg
 
+DEFAULT_MINUTES = 20.0  # a first run ends in a known time; --resume continues it
+
 HELP = "train the masking network with pose supervision (or the raw / cfar / supervised-mask baselines)"
 
 DESCRIPTION = HELP + """.
@@ -15,9 +17,13 @@ them. Without DATA, simulated drives are used: every scenario in --scenarios for
 in --sim-seeds (training) and --val-seeds (validation). Simulated drives are converted once
 and cached under $RADAR_ODOM_CACHE (default ~/.cache/radar-odom).
 
-Writes OUTPUT (best checkpoint by validation loss), OUTPUT.state.pt (for --resume),
-OUTPUT.log.json and OUTPUT.loss.png. Runs under `torchrun --nproc_per_node=N -m radar_odom
-train ...` with DistributedDataParallel (gloo on CPU). Needs the export extra (torch)."""
+Stops at --minutes (default 20, announced with its end time when the command starts) or
+--epochs, whichever comes first; `--resume` with the same arguments continues. Writes OUTPUT
+(the best checkpoint by validation pose error), OUTPUT.state.pt (for --resume), OUTPUT.log.json
+and OUTPUT.loss.png; the last line gives the best epoch's validation pose error (grid cells²)
+and its validation loss (the trained objective) apart. `radar-odom export OUTPUT` then
+calibrates the covariance (unless already calibrated) and writes the ONNX model.
+Runs under `torchrun --nproc_per_node=N -m radar_odom train ...` with DistributedDataParallel (gloo on CPU). Needs the export extra (torch)."""
 
 
 def register(subparsers) -> None:
@@ -80,8 +86,11 @@ def register(subparsers) -> None:
     g.add_argument(
         "--minutes",
         type=float,
-        default=None,
-        help="wall-clock budget of this invocation; stops mid-epoch, validates and saves",
+        default=DEFAULT_MINUTES,
+        help="wall-clock budget of this invocation, counted from the command's start (simulating drives "
+        "included); the end time is printed at the start; at the budget the run stops mid-epoch, validates "
+        "and saves, and the same command with --resume continues it; 0: no budget, --epochs alone "
+        "(default: %(default)s)",
     )
     g.add_argument(
         "--steps-per-epoch",
