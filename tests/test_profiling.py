@@ -252,6 +252,7 @@ def test_profile_command_end_to_end(tiny_model, tmp_path, capsys):
         f = m["files"][mode]
         assert f["sweeps"] == 6 and f["sweeps_per_s"] > 0
         assert f["ratio"] == pytest.approx(f["wall_per_sweep_s"] / max(f["load_median_s"], f["step_median_s"]))
+    assert sorted(p.name for p in out.iterdir()) == ["profile.json", "profile.md"]  # no traces without --keep-traces
     assert "| tiny |" in (out / "profile.md").read_text()
     assert "End to end on files" in (out / "profile.md").read_text()
     printed = capsys.readouterr().out
@@ -272,19 +273,53 @@ def test_rss_stream_in_a_fresh_process(tiny_model):
     assert r["growth_from_step"] == 10 and r["growth_mb"] == pytest.approx(r["samples"][-1][1] - r["samples"][1][1])
 
 
-def test_profile_defaults_leave_out_unshipped_profiles_without_torch_and_say_so():
-    """`radar-odom profile` with no arguments in the README's command-1 install (no torch): the
-    default profiles are the shipped models' (cart-0.2 is not shipped and could not be exported),
-    with a note naming --profiles; with torch, all of them."""
+def test_profile_defaults_are_the_shipped_models_and_help_explains_every_column(capsys):
+    """`radar-odom profile` with no arguments times the shipped models only (cart-0.2, which is not
+    shipped, on request); --help and the report explain every column of both tables."""
     from radar_odom import pretrained_names
-    from radar_odom.commands.profile import PROFILE_NAMES, default_profile_names
+    from radar_odom.commands.cli import main
+    from radar_odom.commands.profile import default_profile_names
+    from radar_odom.latency.columns import FILE_COLUMNS, LATENCY_COLUMNS
 
-    notes = []
-    names = default_profile_names(torch_available=False, echo=notes.append)
-    assert names == [n for n in PROFILE_NAMES if n in pretrained_names()] and "cart-0.2" not in names
-    assert names  # something is still profiled
-    assert len(notes) == 1 and "cart-0.2" in notes[0] and "--profiles" in notes[0]
-    assert default_profile_names(torch_available=True, echo=notes.append) == list(PROFILE_NAMES)
+    assert default_profile_names() == pretrained_names() and "cart-0.2" not in default_profile_names()
+    with pytest.raises(SystemExit):
+        main(["profile", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    for head, _ in LATENCY_COLUMNS + FILE_COLUMNS:
+        assert f"{head}:" in text, head
+    assert "'p2c'" in text and "--keep-traces" in text
+    md = markdown_report(fake_report())
+    for head, _ in LATENCY_COLUMNS:
+        assert f"- *{head}*:" in md
+
+
+def test_heartbeat_speaks_while_a_silent_phase_runs():
+    import time
+
+    from radar_odom._progress import heartbeat
+
+    lines = []
+    with heartbeat(lines.append, "numpy reference", every_s=0.05):
+        time.sleep(0.28)
+    assert 3 <= len(lines) <= 6 and lines[0].startswith("  … numpy reference: ") and lines[0].endswith(" s")
+    time.sleep(0.1)
+    assert len(lines) <= 6  # stopped with the phase
+
+
+def test_summary_line_names_its_stages_and_flags_a_stream_faster_than_its_steps():
+    from radar_odom.latency.runner import summary_line
+    from radar_odom.latency.timing import ModelProfile
+
+    stage = lambda ms: {"median": ms, "p90": ms, "p99": ms}  # noqa: E731
+    r = ModelProfile("m", "m.onnx", {"resolution_m": 0.2}, None, True,
+                     stages={"graph": stage(300.0), "step": stage(337.0), "polar_to_cartesian": stage(37.0),
+                             "png_decode": stage(5.0)}, peak_rss_mb=100.0)
+    r.files = {"pipelined": {"sweeps_per_s": 8.1, "wall_per_sweep_s": 1 / 8.1, "ratio": 1.0}}
+    line = summary_line(r)
+    assert "p2c" not in line and "step 337.0 ms (paper GPU 48.5 ms) = polar→Cartesian 37.0 ms + graph 300.0 ms" in line
+    assert "123.5 ms per sweep" in line and "faster than the timed steps' 337.0 ms" in line
+    r.files["pipelined"].update(sweeps_per_s=2.9, wall_per_sweep_s=1 / 2.9)
+    assert "faster than" not in summary_line(r)
 
 
 def test_profile_without_torch_for_an_unshipped_profile_names_the_way_out(monkeypatch, tmp_path):

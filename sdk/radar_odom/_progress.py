@@ -2,16 +2,19 @@
 from __future__ import annotations
 
 import sys
+import threading
+import time
+from contextlib import contextmanager
 
 LOG_INTERVAL_S = 20.0  # not a terminal (a log file, CI): one line at most this often
 
 
-def progress(iterable=None, total=None, desc=None, unit="it", disable=False):
+def progress(iterable=None, total=None, desc=None, unit="it", disable=False, interval_s: float = LOG_INTERVAL_S):
     """Wrap an iterable in a tqdm bar on stderr; a no-op wrapper when tqdm is not installed.
 
     On a terminal the bar redraws in place; written to a log (stderr not a terminal) it prints a
     whole line every `LOG_INTERVAL_S` seconds and one at the end, not a carriage-return update
-    per step (17 kB of them per run before)."""
+    per step (17 kB of them per run before); ``interval_s`` sets that spacing."""
     try:
         from tqdm.auto import tqdm
     except ImportError:  # the runtime API must work with the three core dependencies only
@@ -20,7 +23,27 @@ def progress(iterable=None, total=None, desc=None, unit="it", disable=False):
     if getattr(stream, "isatty", lambda: False)():
         return tqdm(iterable, total=total, desc=desc, unit=unit, disable=disable, dynamic_ncols=True)
     return tqdm(iterable, total=total, desc=desc, unit=unit, disable=disable, file=_Lines(stream),
-                mininterval=LOG_INTERVAL_S, maxinterval=3 * LOG_INTERVAL_S, ncols=100)
+                mininterval=interval_s, maxinterval=3 * interval_s, ncols=100)
+
+
+@contextmanager
+def heartbeat(echo, what: str, every_s: float = 10.0):
+    """While the ``with`` body runs, ``echo`` a line ``  … what: N s`` every ``every_s`` seconds
+    (a phase with no bar of its own, e.g. a child process, still says it is alive)."""
+    stop = threading.Event()
+    start = time.perf_counter()
+
+    def beat():
+        while not stop.wait(every_s):
+            echo(f"  … {what}: {time.perf_counter() - start:.0f} s")
+
+    thread = threading.Thread(target=beat, name="heartbeat", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join()
 
 
 class _Lines:

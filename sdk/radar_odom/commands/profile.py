@@ -3,30 +3,38 @@ from __future__ import annotations
 
 from . import help_formatter, threads_arg
 
-HELP = "CPU latency per grid resolution: per stage, per operator class, peak memory, numpy-FFT reference"
-PROFILE_NAMES = ("cart-0.8", "cart-0.4", "cart-0.2")  # radar_odom.latency.DEFAULT_PROFILES, kept light
+HELP = "CPU latency of the shipped models: per stage, per operator class, peak memory, numpy-FFT reference"
 
 
 def register(subparsers) -> None:
+    import argparse
+
+    from ..latency.columns import help_text
+
+    class Formatter(help_formatter(), argparse.RawDescriptionHelpFormatter):
+        pass
+
     p = subparsers.add_parser(
         "profile", help=HELP,
         description=(
-            HELP + ". Streams simulated sweeps (Oxford-layout PNGs) through each model and times PNG "
-            "decode, sweep parsing, polar→Cartesian and the graph (median, p90, p99 after a warm-up), "
-            "groups the graph's time by operator class with onnxruntime's profiler, and times the same "
-            "search in numpy (pocketfft) on the same masked images. Writes OUT/profile.json and "
-            "OUT/profile.md. A profile with no model given and none shipped gets an untrained model exported "
-            "on the fly (needs torch, the export extra; weights do not change the time); without torch the "
-            "default --profiles are the shipped models' only."
+            HELP + ".\n\nStreams simulated sweeps (Oxford-layout PNGs) through each model and times PNG decode, "
+            "sweep parsing,\npolar→Cartesian and the graph (median, p90, p99 after a warm-up), groups the graph's "
+            "time by operator\nclass with onnxruntime's profiler, times the same search in numpy (pocketfft) on the "
+            "same masked images,\nstreams sweep files end to end, and runs a RadarOdometer stream in a fresh process "
+            "for its memory.\nBy default the shipped models (radar_odom.pretrained_names()), about 2-3 minutes on "
+            "2 cores, a\nprogress line at least every 10 s. Writes OUT/profile.json and OUT/profile.md and nothing "
+            "else,\nunless --keep-traces (onnxruntime's JSON traces) or an untrained export for a profile with no\n"
+            "model (--profiles cart-0.2: needs torch; its .onnx is written under OUT/models and named)."
         ),
-        formatter_class=help_formatter(),
+        epilog=help_text(),
+        formatter_class=Formatter,
     )
     p.add_argument("--models", nargs="*", default=[], metavar="NAME|PATH",
                    help="shipped model names (radar_odom.pretrained_names()) or exported .onnx files")
     p.add_argument("--profiles", nargs="*", default=None, metavar="PROFILE",
                    help="grid profiles to cover; one without a model in --models uses the shipped model of that "
-                        f"name, or else an untrained export (default: {' '.join(PROFILE_NAMES)}; without torch "
-                        "only those with a shipped model)")
+                        "name, or else an untrained export timed only, e.g. cart-0.2 (needs torch) (default: the "
+                        "shipped models)")
     p.add_argument("--search", choices=("fast", "exhaustive", "decoupled"), default="fast",
                    help="rotation search of the untrained exports: coarse-to-fine, every yaw candidate, or "
                         "decoupled (yaw from the magnitude spectra, then one translation correlation); a model "
@@ -51,8 +59,9 @@ def register(subparsers) -> None:
     p.add_argument(
         "--rss-steps",
         type=int,
-        default=1000,
-        help="steps of a RadarOdometer stream at --rss-profile in a fresh process, sampling RSS (0: none)",
+        default=300,
+        help="steps of a RadarOdometer stream at --rss-profile in a fresh process, sampling RSS (0: none; "
+        "benchmarks/soak.py runs the long leak check)",
     )
     p.add_argument(
         "--file-sweeps",
@@ -63,28 +72,23 @@ def register(subparsers) -> None:
     )
     p.add_argument("--rss-profile", default="cart-0.4", help="profile whose model runs the RSS stream")
     p.add_argument("-o", "--output", default="radar-odom-profile", help="output folder")
+    p.add_argument("--keep-traces", action="store_true",
+                   help="keep onnxruntime's JSON traces of the --operator-steps in OUT (tens of MB per model)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
 
 
-def default_profile_names(torch_available: bool | None = None, echo=print) -> list[str]:
-    """`PROFILE_NAMES`, less those with no shipped model when torch (needed to export an untrained
-    one) is not installed; each one left out is named, with what to do."""
-    import importlib.util
-
+def default_profile_names() -> list[str]:
+    """The shipped models' names: what `radar-odom profile` times without --profiles / --models
+    (cart-0.2 has no shipped model: an untrained export of it only on request)."""
+    from ..errors import ConfigError
     from ..model_zoo import pretrained_names
 
-    if torch_available is None:
-        torch_available = all(importlib.util.find_spec(m) is not None for m in ("torch", "radar_odom_export"))
-    if torch_available:
-        return list(PROFILE_NAMES)
-    shipped = set(pretrained_names())
-    keep = [n for n in PROFILE_NAMES if n in shipped]
-    for name in PROFILE_NAMES:
-        if name not in shipped:
-            echo(f"note: profile {name} left out: no shipped model, and torch is not installed to export an "
-                 f"untrained one (install the export extra, or pass --models PATH.onnx --profiles {name})")
-    return keep
+    names = pretrained_names()
+    if not names:
+        raise ConfigError("this installation ships no models: give --models PATH.onnx (or --profiles NAME with "
+                          "torch installed, for an untrained export timed only)")
+    return names
 
 
 def run(args) -> int:
@@ -94,7 +98,7 @@ def run(args) -> int:
     from ..latency import run_profile
 
     if args.profiles is None:
-        args.profiles = default_profile_names()
+        args.profiles = [] if args.models else default_profile_names()
     if 1 <= args.steps < 200:
         print(f"note: --steps {args.steps} is below 200; p99 over so few steps is rough")
     run_profile(
@@ -112,5 +116,6 @@ def run(args) -> int:
         out_dir=args.output,
         command="radar-odom " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
         progress_bar=not args.no_progress,
+        keep_traces=args.keep_traces,
     )
     return 0

@@ -5,6 +5,7 @@ import json
 import math
 from pathlib import Path
 
+from .columns import FILE_COLUMNS, LATENCY_COLUMNS, legend
 from .files import file_throughput
 from .memory import rss_stream
 from .models import resolve_models
@@ -12,7 +13,8 @@ from .stats import MASKER_OPS, format_machine, machine_info
 from .sweeps import PROFILE_SEED, simulated_pngs
 from .timing import ModelProfile, profile_model
 
-DEFAULT_PROFILES = ("cart-0.8", "cart-0.4", "cart-0.2")
+DEFAULT_PROFILES = ("cart-0.8", "cart-0.4")  # the shipped models; cart-0.2 (untrained export) on request
+PROGRESS_EVERY_S = 10.0  # the longest a profile run stays silent
 # The paper's Titan Xp times for a full step (its appendix, speed vs accuracy), ms.
 PAPER_GPU_MS = {0.8: 11.3, 0.4: 16.9, 0.2: 48.5}
 
@@ -35,9 +37,12 @@ def run_profile(
     command: str | None = None,
     echo=print,
     progress_bar=True,
+    keep_traces: bool = False,
 ) -> dict:
     """Profile every model (see `resolve_models`), write ``profile.json`` and ``profile.md`` in
-    ``out_dir``, and return the report dictionary."""
+    ``out_dir`` (and onnxruntime's traces only with ``keep_traces``), and return the report
+    dictionary. Every phase says when it starts and at least every `PROGRESS_EVERY_S` while it runs."""
+    from .._progress import heartbeat
     from ..errors import ConfigError
     from ..onnx_model import physical_cores
 
@@ -53,9 +58,12 @@ def run_profile(
     out_dir.mkdir(parents=True, exist_ok=True)
     machine = machine_info(threads)
     echo(f"machine: {format_machine(machine)}")
-    chosen = resolve_models(models, profiles, out_dir, search=search, echo=echo)
+    with heartbeat(echo, "choosing the models", PROGRESS_EVERY_S):
+        chosen = resolve_models(models, profiles, out_dir, search=search, echo=echo)
+    written = [path for _, path, untrained in chosen if untrained]  # untrained exports land in out_dir
     echo(f"simulating {distinct_sweeps} sweeps (seed {PROFILE_SEED}) ...")
-    pngs = simulated_pngs(distinct_sweeps)
+    with heartbeat(echo, "simulating sweeps", PROGRESS_EVERY_S):
+        pngs = simulated_pngs(distinct_sweeps)
     results = []
     for label, path, untrained in chosen:
         r = profile_model(
@@ -66,15 +74,18 @@ def run_profile(
             threads=threads,
             reference_steps=reference_steps,
             operator_steps=operator_steps,
-            trace_dir=out_dir,
+            trace_dir=out_dir if keep_traces else None,
             name=label,
             untrained=untrained,
             progress_bar=progress_bar,
             echo=echo,
+            every_s=PROGRESS_EVERY_S,
         )
+        written += r.traces
         if file_sweeps > 0:
             echo(f"{label}: {file_sweeps} sweeps from PNG files, pipelined and serial ...")
-            r.files = file_throughput(path, pngs, sweeps=file_sweeps, threads=threads)
+            with heartbeat(echo, f"{label}: sweep files", PROGRESS_EVERY_S):
+                r.files = file_throughput(path, pngs, sweeps=file_sweeps, threads=threads)
         echo(summary_line(r))
         results.append(r.to_dict())
     report = {
@@ -106,7 +117,8 @@ def run_profile(
             echo(f"no {rss_profile} model among the profiled ones: no RSS stream")
         else:
             echo(f"RSS: {rss_steps} steps of {target[0]} through RadarOdometer in a fresh process ...")
-            report["rss_stream"] = {"model": target[0], **rss_stream(target[1], rss_steps, threads)}
+            with heartbeat(echo, "RSS stream", PROGRESS_EVERY_S):
+                report["rss_stream"] = {"model": target[0], **rss_stream(target[1], rss_steps, threads)}
             rs = report["rss_stream"]
             echo(
                 f"RSS: peak {rs['peak_mb']:.0f} MiB, {rs['growth_mb']:+.1f} MiB from step "
@@ -114,7 +126,8 @@ def run_profile(
             )
     (out_dir / "profile.json").write_text(json.dumps(report, indent=2))
     (out_dir / "profile.md").write_text(markdown_report(report))
-    echo(f"wrote {out_dir / 'profile.json'} and {out_dir / 'profile.md'}")
+    named = ", ".join(str(p) for p in written)
+    echo(f"wrote {out_dir / 'profile.json'} and {out_dir / 'profile.md'}" + (f"; and {named}" if named else ""))
     return report
 
 
@@ -160,24 +173,33 @@ def _num_rotations(profile: dict) -> int:
 
 
 def summary_line(r: ModelProfile) -> str:
+    """One printed line per model: the timed steps' medians (step = polar→Cartesian + graph), then
+    the separate end-to-end stream over files (sweeps/s and its ms per sweep), with a note where the
+    two disagree (the machine's load changed between them: a stream cannot beat its own steps)."""
     g, st = r.stages["graph"], r.stages["step"]
     res = r.profile["resolution_m"]
     paper = PAPER_GPU_MS.get(round(res, 3))
     tail = f" (paper GPU {paper} ms)" if paper else ""
     return (
-        f"{r.name}: step {st['median']:.1f} ms median{tail}, graph {g['median']:.1f} ms, "
-        f"p2c {r.stages['polar_to_cartesian']['median']:.1f} ms, decode {r.stages['png_decode']['median']:.1f} ms, "
-        f"peak RSS {r.peak_rss_mb:.0f} MiB" + _files_tail(r.files)
+        f"{r.name}: timed steps, medians: step {st['median']:.1f} ms{tail} = polar→Cartesian "
+        f"{r.stages['polar_to_cartesian']['median']:.1f} ms + graph {g['median']:.1f} ms; PNG decode "
+        f"{r.stages['png_decode']['median']:.1f} ms; peak RSS {r.peak_rss_mb:.0f} MiB"
+        + _files_tail(r.files, st["median"])
     )
 
 
-def _files_tail(files: dict) -> str:
+def _files_tail(files: dict, step_median_ms: float | None = None) -> str:
     f = (files or {}).get("pipelined")
     if not f:
         return ""
-    return f"; files: {f['sweeps_per_s']:.1f} sweeps/s pipelined, wall / max(read, step) {f['ratio']:.2f}" + (
-        f" (serial {files['serial']['ratio']:.2f})" if files.get("serial") else ""
-    )
+    per_sweep = 1e3 * f["wall_per_sweep_s"]
+    text = (f"; files (a separate stream): {f['sweeps_per_s']:.1f} sweeps/s pipelined = {per_sweep:.1f} ms per sweep, "
+            f"wall / max(read, step) {f['ratio']:.2f}") + (
+        f" (serial {files['serial']['ratio']:.2f})" if files.get("serial") else "")
+    if step_median_ms and per_sweep < 0.9 * step_median_ms:
+        text += (f" [faster than the timed steps' {step_median_ms:.1f} ms: the machine's load changed between the "
+                 "two; compare figures within one of them]")
+    return text
 
 
 def markdown_report(report: dict) -> str:
@@ -195,10 +217,8 @@ def markdown_report(report: dict) -> str:
         f"({', '.join(sorted(MASKER_OPS))}) from the traced runs. Process peak RSS is cumulative over the "
         "models profiled so far; the memory line below is one model alone.",
         "",
-        "| model | grid | search | PNG decode | sweep parse | polar→Cartesian | graph | step (p→C + graph) "
-        "| paper GPU step | graph / numpy-FFT exhaustive | graph / numpy-FFT same search "
-        "| search only / numpy-FFT same search | process peak RSS MiB |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| " + " | ".join(head for head, _ in LATENCY_COLUMNS) + " |",
+        "|" + "---|" * len(LATENCY_COLUMNS),
     ]
     for r in report["models"]:
         p, s = r["profile"], r["stages"]
@@ -243,9 +263,8 @@ def markdown_report(report: dict) -> str:
             "thread while the graph runs, and the same serially). *Ratio* = wall per sweep / "
             "max(median read, median step); 1.0 is perfect overlap.",
             "",
-            "| model | pipelined sweeps/s | ms per sweep | read median | step median | ratio "
-            "| serial sweeps/s | serial ratio |",
-            "|---|---:|---:|---:|---:|---:|---:|---:|",
+            "| model | " + " | ".join(head for head, _ in FILE_COLUMNS) + " |",
+            "|---|" + "---:|" * len(FILE_COLUMNS),
         ]
         for r in with_files:
             p, s = r["files"]["pipelined"], r["files"].get("serial") or {}
@@ -262,6 +281,11 @@ def markdown_report(report: dict) -> str:
             f"peak RSS {rs['peak_mb']:.0f} MiB; RSS {rs['growth_mb']:+.1f} MiB from step "
             f"{rs['growth_from_step']} to the end (sampled every {rs.get('every', '?')} steps).",
         ]
+    lines += ["", "Columns of the latency table:", "", *legend(LATENCY_COLUMNS)]
+    if with_files:
+        lines += ["", "Columns of the end-to-end table (its stream is timed separately from the steps above, so "
+                  "its step median and the latency table's step can differ with the machine's load):", "",
+                  *legend(FILE_COLUMNS)]
     untrained = [r["name"] for r in report["models"] if r.get("untrained")]
     if untrained:
         lines += ["", f"Untrained models (exported on the fly, timing only): {', '.join(untrained)}."]

@@ -30,6 +30,7 @@ class ModelProfile:
     masker: dict = field(default_factory=dict)  # latency_summary of the masker's operators (traced)
     peak_rss_mb: float | None = None
     files: dict = field(default_factory=dict)  # "pipelined" / "serial" -> pipeline.Throughput.as_dict()
+    traces: list = field(default_factory=list)  # onnxruntime trace files kept (only with a trace_dir)
     notes: list = field(default_factory=list)
 
     def to_dict(self) -> dict:
@@ -38,11 +39,13 @@ class ModelProfile:
 
 def profile_model(model_path, pngs: list[bytes], *, steps: int = 200, warmup: int = 20, threads: int = 2,
                   reference_steps: int = 30, operator_steps: int = 50, trace_dir=None, name=None,
-                  untrained: bool = False, progress_bar: bool = True, echo=None) -> ModelProfile:
+                  untrained: bool = False, progress_bar: bool = True, echo=None,
+                  every_s: float = 10.0) -> ModelProfile:
     """Time every stage of ``steps`` stream steps of one model (see the module docstring); ``echo``
-    (e.g. print) says when each later phase starts (they run for a minute or more without a bar)."""
+    (e.g. print) says when each later phase starts and, every ``every_s`` seconds, that it still runs.
+    onnxruntime's trace is kept in ``trace_dir`` only when one is given (tens of MB)."""
     say = echo or (lambda text: None)
-    from .._progress import progress
+    from .._progress import heartbeat, progress
     from ..odometry.odometer import RadarOdometer
     from ..onnx_model import OnnxModel
 
@@ -60,7 +63,8 @@ def profile_model(model_path, pngs: list[bytes], *, steps: int = 200, warmup: in
     state = np.zeros(info.state_shape, dtype=np.float32) if streaming else None
     prev_x = None
     times = {s: [] for s in STAGES}
-    bar = progress(total=warmup + steps, desc=f"profile {result.name}", unit="step", disable=not progress_bar)
+    bar = progress(total=warmup + steps, desc=f"profile {result.name}", unit="step", disable=not progress_bar,
+                   interval_s=every_s)
     for i in range(warmup + steps):
         t0 = time.perf_counter()
         img = decode_png(pngs[i % len(pngs)])
@@ -90,11 +94,13 @@ def profile_model(model_path, pngs: list[bytes], *, steps: int = 200, warmup: in
     result.peak_rss_mb = peak_rss_mb()
     if streaming and reference_steps > 0:
         say(f"{result.name}: the same search in numpy (pocketfft), {reference_steps} steps ...")
-        result.reference = _reference(model, info, pngs, odo, reference_steps, search)
+        with heartbeat(say, f"{result.name}: numpy reference", every_s):
+            result.reference = _reference(model, info, pngs, odo, reference_steps, search)
     if operator_steps > 0:
         say(f"{result.name}: onnxruntime's profiler, {operator_steps} steps ...")
-        result.operators, result.masker = _operators(model_path, threads, pngs, odo, info, operator_steps,
-                                                     trace_dir, result.name)
+        with heartbeat(say, f"{result.name}: onnxruntime's profiler", every_s):
+            result.operators, result.masker, result.traces = _operators(
+                model_path, threads, pngs, odo, info, operator_steps, trace_dir, result.name)
     return result
 
 
@@ -134,8 +140,10 @@ def _reference(model, info, pngs, odo, count, search) -> dict:
     return out
 
 
-def _operators(model_path, threads, pngs, odo, info, steps, trace_dir, name) -> dict:
-    """Operator classes from a separate, traced session (tracing slows the timed one)."""
+def _operators(model_path, threads, pngs, odo, info, steps, trace_dir, name) -> tuple[dict, dict, list]:
+    """Operator classes from a separate, traced session (tracing slows the timed one): (operator
+    summaries, masker time, [the trace file] when kept in ``trace_dir``, else [])."""
+    import re
     import tempfile
 
     from ..onnx_model import OnnxModel
@@ -144,7 +152,7 @@ def _operators(model_path, threads, pngs, odo, info, steps, trace_dir, name) -> 
     if trace_dir is None:
         tmp = tempfile.TemporaryDirectory()
         trace_dir = tmp.name
-    prefix = Path(trace_dir) / f"ort-trace-{name}"
+    prefix = Path(trace_dir) / ("ort-trace-" + re.sub(r"[^A-Za-z0-9._-]+", "-", name).strip("-"))  # a plain name
     traced = OnnxModel(model_path, threads=threads, enable_profiling=True, profile_prefix=prefix)
     try:
         if info.form == "stream" and info.profile.mode == "single":
@@ -154,8 +162,9 @@ def _operators(model_path, threads, pngs, odo, info, steps, trace_dir, name) -> 
             x = odo._sweep_input(parse_sweep(decode_png(pngs[0])))
             for _ in range(steps):
                 traced.run({n: x for n in info.inputs})
-        per_run, names = operator_runs(traced.end_profiling())
-        return _summarise_ops(per_run, names), masker_time(per_run)
+        trace = traced.end_profiling()
+        per_run, names = operator_runs(trace)
+        return _summarise_ops(per_run, names), masker_time(per_run), ([] if tmp is not None else [str(trace)])
     finally:
         if tmp is not None:
             tmp.cleanup()
