@@ -23,7 +23,8 @@ Stops at --minutes (default 20, announced with its end time when the command sta
 and OUTPUT.loss.png; the last line gives the best epoch's validation pose error (grid cells²)
 and its validation loss (the trained objective) apart. `radar-odom export OUTPUT` then
 calibrates the covariance (unless already calibrated) and writes the ONNX model.
-Runs under `torchrun --nproc_per_node=N -m radar_odom train ...` with DistributedDataParallel (gloo on CPU). Needs the export extra (torch)."""
+Runs under `torchrun --nproc_per_node=N -m radar_odom train ...` with DistributedDataParallel
+(gloo on CPU). Needs the export extra (torch)."""
 
 
 def register(subparsers) -> None:
