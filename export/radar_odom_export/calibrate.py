@@ -433,6 +433,14 @@ def calibrate_checkpoint(
     return result
 
 
+def is_calibrated(path) -> bool:
+    """Whether ``path`` carries a calibration record (`calibrate_checkpoint` writes one; a checkpoint
+    straight from `radar-odom train` has none)."""
+    from .checkpoint import read_checkpoint_dict
+
+    return "calibration" in read_checkpoint_dict(path)
+
+
 def run_from_args(args) -> CalibrationResult:
     """`radar-odom calibrate`: held-out drives on the checkpoint's grid, then `calibrate_checkpoint`."""
     import sys

@@ -62,6 +62,20 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
+def default_args(checkpoint: str, **overrides) -> argparse.Namespace:
+    """`radar-odom calibrate CHECKPOINT` as the command line would parse it, with ``overrides``
+    (e.g. ``search``, ``data``, ``threads``): how `radar-odom export` calibrates a checkpoint that
+    is not, with this command's own defaults (one home for them)."""
+    parser = argparse.ArgumentParser(prog="radar-odom")
+    register(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(["calibrate", str(checkpoint)])
+    for key, value in overrides.items():
+        if not hasattr(args, key):
+            raise AttributeError(f"radar-odom calibrate has no option {key!r}")
+        setattr(args, key, value)
+    return args
+
+
 def run(args) -> int:
     from ..errors import MissingExtraError
 

@@ -3,19 +3,27 @@
 
 A shipped name (``radar-odom export cart-0.4``) reproduces the shipped model: its search, search
 settings and form are read from the shipped ONNX file's metadata (``radar_odom.search``,
-``radar_odom.form``) unless ``--search`` / ``--form`` say otherwise."""
+``radar_odom.form``) unless ``--search`` / ``--form`` say otherwise. A user's checkpoint is
+written as the shipped models are: the fast search, the stream form, and a calibrated covariance
+(a checkpoint that `radar-odom calibrate` has not calibrated is calibrated first, in place, with
+that command's defaults; ``--no-calibrate`` writes it as it is, with a warning)."""
 from __future__ import annotations
 
 from ..model_file import DEFAULT_OPSET, MIN_EXPORT_OPSET
 from ..model_zoo import shipped_export  # noqa: F401  (re-exported: its home is radar_odom.model_zoo)
 from ..outputs import check_output_path  # noqa: F401  (re-exported: its home is radar_odom.outputs)
+from . import threads_arg
 
 HELP = "export a trained checkpoint to one self-contained ONNX graph (sweep in, pose + covariance out)"
 
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
-        "export", help=HELP, description=HELP + ". Needs the export extra (torch, onnx, onnxscript)."
+        "export", help=HELP, description=HELP + ". A checkpoint without a calibrated covariance (straight "
+        "from `radar-odom train`) is first calibrated in place as `radar-odom calibrate CHECKPOINT` would "
+        "(simulated held-out drives; a few minutes, with a progress bar and the d² table), so the file written "
+        "is what the shipped models are: fast search, stream form, calibrated covariance. Needs the export "
+        "extra (torch, onnx, onnxscript)."
     )
     p.add_argument("checkpoint", help="checkpoint written by `radar-odom train` (.pt), or the name of a "
                                       "shipped one (cart-0.8, cart-0.4): the weights of the pretrained models")
@@ -32,8 +40,16 @@ def register(subparsers) -> None:
                    help="exhaustive: score every yaw candidate (the paper's search); fast: coarse-to-fine yaw "
                         "search, several times faster on a CPU, stream and sequence forms; decoupled: yaw from "
                         "the magnitude spectra first, then one translation correlation (Fast-MbyM), stream form "
-                        "(default: a shipped name's own search, read from the shipped model; else exhaustive, "
-                        "fast for --form sequence)")
+                        "(default: a shipped name's own search, read from the shipped model; else fast, as the "
+                        "shipped models, or exhaustive for --form pair and for a dual-mode profile)")
+    p.add_argument("--no-calibrate", action="store_true",
+                   help="write a checkpoint that was never calibrated as it is: its covariance is then the raw "
+                        "softmax moment, not a calibrated 1σ (most estimates come out prior_dominated); warned")
+    p.add_argument("--calibration-data", nargs="+", default=None, metavar="DIR",
+                   help="recordings with ground truth to calibrate an uncalibrated checkpoint on, instead of "
+                        "`radar-odom calibrate`'s simulated held-out drives")
+    p.add_argument("--threads", type=threads_arg, default=None,
+                   help="torch threads for that calibration (default: all cores)")
     p.add_argument("--opset", type=int, default=DEFAULT_OPSET,
                    help=f"ONNX opset to write, {MIN_EXPORT_OPSET} or later; the written file is checked to have it "
                         f"(default: {DEFAULT_OPSET})")
@@ -75,8 +91,9 @@ def run(args) -> int:
         search, form, settings = shipped["search"], shipped["form"], shipped["settings"]
         tag = ""
     else:
-        search = args.search or ("fast" if args.form == "sequence" else "exhaustive")
-        plain = shipped is None and search == "exhaustive" and form in (None, "stream")
+        default = default_search(ckpt, form)
+        search = args.search or default
+        plain = shipped is None and search == default and form in (None, "stream")
         tag = "" if plain else f"-{search}" + (f"-{form}" if form not in (None, "stream") else "")
     # the default name says the search and form (two exports never share it); a shipped name writes
     # NAME.onnx in the working directory, never into the package
@@ -88,6 +105,7 @@ def run(args) -> int:
     if out.exists() and not args.force:
         raise OutputError(f"{out} exists; pass --force to overwrite it, or -o to write elsewhere")
     check_output_path(out)
+    calibrate_first(ckpt, search, args)
     common = dict(form=form, opset=args.opset, verify=not args.no_verify, search=search,
                   exporter=args.exporter)
     if settings is not None:
@@ -105,6 +123,44 @@ def run(args) -> int:
     report = export_checkpoint(ckpt, out, **common)
     print(report.summary())
     return 0
+
+
+def default_search(checkpoint, form: str | None) -> str:
+    """The search a user's checkpoint is exported with when ``--search`` is not given: the fast
+    search, as the shipped models are written; exhaustive where the fast one does not exist (the
+    pair form, a dual-mode profile whose state is the previous sweep)."""
+    from radar_odom_export.checkpoint import read_checkpoint_dict
+
+    if form == "pair" or read_checkpoint_dict(checkpoint)["profile"].get("mode", "single") == "dual":
+        return "exhaustive"
+    return "fast"
+
+
+def calibrate_first(checkpoint, search: str, args) -> None:
+    """Calibrate ``checkpoint`` in place if it never was (`radar-odom calibrate`'s defaults, the
+    estimates of ``search``), or with ``--no-calibrate`` say loudly, in one line, that it is not."""
+    import sys
+
+    from radar_odom_export.calibrate import is_calibrated
+
+    if is_calibrated(checkpoint):
+        return
+    if args.no_calibrate:
+        print(f"radar-odom export: warning: {checkpoint} was never calibrated (--no-calibrate): the model's "
+              "covariance is the raw softmax moment, not a 1σ, so most estimates will come out prior_dominated; "
+              f"run `radar-odom calibrate {checkpoint}` first, or export without --no-calibrate", file=sys.stderr)
+        return
+    from radar_odom_export.calibrate import run_from_args
+
+    from . import calibrate
+
+    print(f"{checkpoint}: no calibrated covariance yet: calibrating it first, in place, as `radar-odom calibrate "
+          f"{checkpoint}` would ({search if search in ('exhaustive', 'fast') else 'fast'} search"
+          + (", on --calibration-data" if args.calibration_data else ", simulated held-out drives")
+          + "; --no-calibrate skips this) ...", flush=True)
+    run_from_args(calibrate.default_args(
+        str(checkpoint), search=search if search in ("exhaustive", "fast") else "fast",
+        data=list(args.calibration_data or []), threads=args.threads))
 
 
 def check_opset(opset: int) -> None:
