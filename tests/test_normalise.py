@@ -282,7 +282,7 @@ def test_exported_cfar_model_matches_torch_in_onnxruntime(trained_cfar, tmp_path
 
     path, _ = trained_cfar
     out = tmp_path / f"cfar-{search}.onnx"
-    assert main(["export", str(path), "-o", str(out), "--search", search]) == 0
+    assert main(["export", str(path), "-o", str(out), "--search", search, "--no-calibrate"]) == 0
     assert "onnxruntime vs torch" in capsys.readouterr().out
     ops = {n.op_type for n in onnx.load(str(out)).graph.node}
     assert {"TopK", "AveragePool", "Sigmoid"} <= ops and not {"DFT", "STFT"} & ops

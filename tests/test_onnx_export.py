@@ -224,7 +224,7 @@ def test_export_command_from_a_checkpoint(tmp_path, capsys):
     ckpt = save_checkpoint(tmp_path / "m.pt", model, "learned", train={"command": "radar-odom train ...",
                                                                        "seeds": [1000, 1001]})
     out = tmp_path / "m.onnx"
-    assert main(["export", str(ckpt), "-o", str(out)]) == 0
+    assert main(["export", str(ckpt), "-o", str(out), "--no-calibrate"]) == 0
     printed = capsys.readouterr().out
     assert f"wrote {out}" in printed and "onnxruntime vs torch" in printed
     info = OnnxModel(out).info
@@ -240,8 +240,8 @@ def test_export_command_writes_the_fast_search_when_asked(tmp_path, capsys):
     profile = TINY.with_(rotation_range_rad=math.radians(18), rotation_step_rad=math.radians(3))
     ckpt = save_checkpoint(tmp_path / "m.pt", seeded_model(profile), "learned", train={})
     fast, exhaustive = tmp_path / "fast.onnx", tmp_path / "exhaustive.onnx"
-    assert main(["export", str(ckpt), "-o", str(fast), "--search", "fast"]) == 0
-    assert main(["export", str(ckpt), "-o", str(exhaustive)]) == 0
+    assert main(["export", str(ckpt), "-o", str(fast), "--no-calibrate"]) == 0  # fast: the default, as shipped
+    assert main(["export", str(ckpt), "-o", str(exhaustive), "--search", "exhaustive", "--no-calibrate"]) == 0
     assert OnnxModel(fast).info.search["kind"] == "coarse_to_fine"
     assert OnnxModel(exhaustive).info.search is None
     capsys.readouterr()
@@ -252,18 +252,24 @@ def test_export_command_writes_the_fast_search_when_asked(tmp_path, capsys):
 
 
 def test_export_command_picks_the_fast_search_for_the_sequence_form(tmp_path, monkeypatch):
-    """--form sequence alone asks for the fast search (the only one it has); the export itself is
+    """--form sequence alone asks for the fast search (the only one it has), no --form the fast
+    search too (as the shipped models), --form pair the exhaustive one; the export itself is
     tested on the committed sequence fixture (test_fixture_models)."""
     from radar_odom.commands.cli import main
+    from radar_odom_export.checkpoint import save_checkpoint
 
     asked = []
     monkeypatch.setattr(onnx_export, "export_checkpoint",
                         lambda ckpt, out, **kw: asked.append(kw) or SimpleNamespace(summary=lambda: "ok"))
-    ckpt = tmp_path / "m.pt"
-    ckpt.write_bytes(b"")
+    profile = TINY.with_(rotation_range_rad=math.radians(18), rotation_step_rad=math.radians(3))  # divides the turn
+    ckpt = save_checkpoint(tmp_path / "m.pt", seeded_model(profile), "learned", calibration={"test": "export only"})
+    odd = save_checkpoint(tmp_path / "odd.pt", seeded_model(TINY), "learned", calibration={"test": "export only"})
     assert main(["export", str(ckpt), "--form", "sequence"]) == 0
     assert main(["export", str(ckpt)]) == 0
-    assert [(a["form"], a["search"]) for a in asked] == [("sequence", "fast"), (None, "exhaustive")]
+    assert main(["export", str(ckpt), "--form", "pair", "--force"]) == 0
+    assert main(["export", str(odd)]) == 0  # a yaw step that does not divide the turn: the polar rotation cannot
+    assert [(a["form"], a["search"]) for a in asked] == [("sequence", "fast"), (None, "fast"), ("pair", "exhaustive"),
+                                                         (None, "exhaustive")]
 
 
 def test_export_command_reports_a_bad_checkpoint(tmp_path, capsys):

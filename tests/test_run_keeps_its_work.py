@@ -132,17 +132,28 @@ def recorded_exports(monkeypatch):
     return asked
 
 
+def _calibrated_checkpoint(path):
+    """A small weightless checkpoint with a calibration record: `export` goes straight to writing."""
+    from radar_odom_export.checkpoint import save_checkpoint
+    from radar_odom_export.model import MaskedCorrelator
+
+    from fixtures import SMALL
+
+    return save_checkpoint(path, MaskedCorrelator(SMALL, masking="raw"), "raw", calibration={"test": "export only"})
+
+
 @pytest.mark.torch
 def test_export_names_its_output_by_search_and_form(recorded_exports, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    ckpt = tmp_path / "m.pt"
-    ckpt.write_bytes(b"")
+    ckpt = _calibrated_checkpoint(tmp_path / "m.pt")
     for argv in (["cart-0.4"], ["cart-0.4", "--search", "decoupled"], ["cart-0.4", "--search", "exhaustive"],
-                 [str(ckpt)], [str(ckpt), "--search", "fast"], [str(ckpt), "--form", "sequence"]):
+                 [str(ckpt)], [str(ckpt), "--search", "exhaustive"], [str(ckpt), "--form", "sequence"]):
         assert main(["export", *argv]) == 0
     names = [out.replace(str(tmp_path) + "/", "") for out, _ in recorded_exports]
+    # a user's checkpoint: the fast search is its default, as the shipped models'
     assert names == ["cart-0.4.onnx", "cart-0.4-decoupled.onnx", "cart-0.4-exhaustive.onnx", "m.onnx",
-                     "m-fast.onnx", "m-fast-sequence.onnx"]
+                     "m-exhaustive.onnx", "m-fast-sequence.onnx"]
+    assert [kw["search"] for _, kw in recorded_exports][3:] == ["fast", "exhaustive", "fast"]
 
 
 @pytest.mark.torch

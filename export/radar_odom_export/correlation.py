@@ -212,6 +212,13 @@ def polar_rotator(width_px: int, step_rad: float, radius_px: float, max_shift: i
                         radial_step_px=radial_step_px, kernel=kernel)
 
 
+def divides_turn(step_rad: float) -> bool:
+    """Whether a whole number of rotation steps (rad) makes the full turn: what `PolarRotator`
+    (rotation by whole rows of a polar image) needs."""
+    steps = 2 * math.pi / step_rad
+    return abs(steps - round(steps)) <= 1e-6
+
+
 class PolarRotator(nn.Module):
     """Rotate images by whole yaw steps through one shared polar resampling.
 
@@ -242,7 +249,7 @@ class PolarRotator(nn.Module):
             raise ValueError(f"kernel={kernel!r}: choose one of {ROTATION_KERNELS}")
         self.kernel = kernel  # of the first resampling (image → polar grid); the second is bilinear
         steps = 2 * math.pi / step_rad
-        if abs(steps - round(steps)) > 1e-6:
+        if not divides_turn(step_rad):
             raise ValueError(f"rotation step {step_rad} rad does not divide the full turn; "
                              "use rotation='bilinear'")
         self.width_px = int(width_px)

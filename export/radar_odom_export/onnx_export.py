@@ -617,6 +617,20 @@ def export_sequence(model, path, settings: FastSearchSettings | None = None, *, 
                    f"{m.profile.name}, sequence form, fast search {step.step.settings.label()}")
 
 
+def check_search_form(search: str, form: str | None) -> None:
+    """`ExportError` for a search and form that do not go together (said before any work is done)."""
+    if search not in SEARCHES:
+        raise ExportError(f"search must be one of {SEARCHES}, got {search!r}")
+    if search == "fast" and (form or "stream") == "pair":
+        raise ExportError("the fast search exists for the stream and sequence forms; use --form stream or "
+                          "--search exhaustive")
+    if search == "decoupled" and (form or "stream") != "stream":
+        raise ExportError("the decoupled search exists for the stream form; use --form stream or --search "
+                          "exhaustive (pair) / fast (sequence)")
+    if form == "sequence" and search != "fast":
+        raise ExportError("the sequence form searches with the fast search only; add --search fast")
+
+
 def export_checkpoint(checkpoint, path, *, form: str | None = None, opset: int = DEFAULT_OPSET,
                       verify: bool = True, exporter: str = "auto", search: str = "exhaustive",
                       search_settings: dict | None = None) -> ExportReport:
@@ -633,16 +647,7 @@ def export_checkpoint(checkpoint, path, *, form: str | None = None, opset: int =
     """
     from .checkpoint import load_checkpoint
 
-    if search not in SEARCHES:
-        raise ExportError(f"search must be one of {SEARCHES}, got {search!r}")
-    if search == "fast" and (form or "stream") == "pair":
-        raise ExportError("the fast search exists for the stream and sequence forms; use --form stream or "
-                          "--search exhaustive")
-    if search == "decoupled" and (form or "stream") != "stream":
-        raise ExportError("the decoupled search exists for the stream form; use --form stream or --search "
-                          "exhaustive (pair) / fast (sequence)")
-    if form == "sequence" and search != "fast":
-        raise ExportError("the sequence form searches with the fast search only; add --search fast")
+    check_search_form(search, form)
     model, meta = load_checkpoint(checkpoint, dft="fft")
     geometry = meta.get("train", {}).get("sweep_geometry")
     if geometry and model.to_cartesian is None:

@@ -79,7 +79,7 @@ def run(args) -> int:
 
     try:
         from radar_odom_export.checkpoint import resolve_checkpoint
-        from radar_odom_export.onnx_export import export_checkpoint
+        from radar_odom_export.onnx_export import check_search_form, export_checkpoint
     except ImportError as exc:  # torch / onnx missing: say which extra to install
         raise MissingExtraError(getattr(exc, "name", None) or "torch", "export") from exc
     check_opset(args.opset)
@@ -105,6 +105,7 @@ def run(args) -> int:
     if out.exists() and not args.force:
         raise OutputError(f"{out} exists; pass --force to overwrite it, or -o to write elsewhere")
     check_output_path(out)
+    check_search_form(search, form)  # before a calibration of minutes
     calibrate_first(ckpt, search, args)
     common = dict(form=form, opset=args.opset, verify=not args.no_verify, search=search,
                   exporter=args.exporter)
@@ -128,10 +129,15 @@ def run(args) -> int:
 def default_search(checkpoint, form: str | None) -> str:
     """The search a user's checkpoint is exported with when ``--search`` is not given: the fast
     search, as the shipped models are written; exhaustive where the fast one does not exist (the
-    pair form, a dual-mode profile whose state is the previous sweep)."""
+    pair form, a dual-mode profile whose state is the previous sweep, a rotation step that does not
+    divide the turn, which its polar rotation needs)."""
     from radar_odom_export.checkpoint import read_checkpoint_dict
+    from radar_odom_export.correlation import divides_turn
 
-    if form == "pair" or read_checkpoint_dict(checkpoint)["profile"].get("mode", "single") == "dual":
+    if form == "sequence":
+        return "fast"  # the only search the sequence form has
+    profile = read_checkpoint_dict(checkpoint)["profile"]
+    if form == "pair" or profile.get("mode", "single") == "dual" or not divides_turn(profile["rotation_step_rad"]):
         return "exhaustive"
     return "fast"
 
