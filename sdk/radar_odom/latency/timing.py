@@ -40,7 +40,7 @@ class ModelProfile:
 def profile_model(model_path, pngs: list[bytes], *, steps: int = 200, warmup: int = 20, threads: int = 2,
                   reference_steps: int = 30, operator_steps: int = 50, trace_dir=None, name=None,
                   untrained: bool = False, progress_bar: bool = True, echo=None,
-                  every_s: float = 10.0) -> ModelProfile:
+                  every_s: float = 8.0) -> ModelProfile:
     """Time every stage of ``steps`` stream steps of one model (see the module docstring); ``echo``
     (e.g. print) says when each later phase starts and, every ``every_s`` seconds, that it still runs.
     onnxruntime's trace is kept in ``trace_dir`` only when one is given (tens of MB)."""
