@@ -9,7 +9,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-pytestmark = [pytest.mark.torch, pytest.mark.slow]
+pytestmark = pytest.mark.torch
 
 # 1.6 m cells, 64 px: a 51 m disc, so the simulated sweeps need 1300 bins (56 m); ±3 yaw steps of 1°
 # (a step must divide the turn)
@@ -53,6 +53,7 @@ def _held_out(model_path, seq_path, motion_prior):
     return np.array(d2), flags
 
 
+@pytest.mark.slow
 def test_train_then_export_gives_a_calibrated_fast_search_model(drives, tmp_path, monkeypatch, capsys):
     from radar_odom.commands.cli import main
     from radar_odom.onnx_model import OnnxModel
@@ -106,3 +107,32 @@ def test_train_then_export_gives_a_calibrated_fast_search_model(drives, tmp_path
     dominated_raw = sum("prior_dominated" in f for f in flags_raw)
     assert dominated_raw == len(flags_raw) - 2 == 21  # every estimate the prior exists for (from the third)
     assert dominated < dominated_raw, (dominated, flags)
+
+
+def test_train_refuses_a_budget_it_cannot_keep_in_one_line(tmp_path, capsys):
+    from radar_odom.commands.cli import main
+
+    for bad in ("-1", "nan"):
+        assert main(["train", "-o", str(tmp_path / "m.pt"), "--minutes", bad]) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(f"radar-odom train: error: --minutes {bad}") and "≥ 0" in err[0]
+    assert not list(tmp_path.iterdir())
+
+
+def test_budget_line_names_the_end_time_and_how_to_go_on():
+    from radar_odom_export.train import budget_line
+
+    line = budget_line(20.0, now=0.0)
+    assert line.startswith("train: 20-minute budget") and "stops by " in line and "--resume continues" in line
+    assert "continuing the saved run" in budget_line(5.0, resume=True)
+    assert "no time budget" in budget_line(None)
+
+
+def test_export_calibrates_with_the_calibrate_commands_own_defaults():
+    from radar_odom.commands import calibrate
+
+    args = calibrate.default_args("m.pt", search="fast", threads=1)
+    assert (args.checkpoint, args.search, args.threads, args.sim_seeds, args.covariance) == (
+        "m.pt", "fast", 1, "2500", "fitted")
+    with pytest.raises(AttributeError, match="no option 'serach'"):
+        calibrate.default_args("m.pt", serach="fast")
