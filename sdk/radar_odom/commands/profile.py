@@ -21,8 +21,8 @@ def register(subparsers) -> None:
             "sweep parsing,\npolar→Cartesian and the graph (median, p90, p99 after a warm-up), groups the graph's "
             "time by operator\nclass with onnxruntime's profiler, times the same search in numpy (pocketfft) on the "
             "same masked images,\nstreams sweep files end to end, and runs a RadarOdometer stream in a fresh process "
-            "for its memory.\nBy default the shipped models (radar_odom.pretrained_names()), about 2-3 minutes on "
-            "2 cores, a\nprogress line at least every 10 s. Writes OUT/profile.json and OUT/profile.md and nothing "
+            "for its memory.\nBy default the shipped models (radar_odom.pretrained_names()); every phase is announced, "
+            "and a\nline printed at least every 10 s. Writes OUT/profile.json and OUT/profile.md and nothing "
             "else,\nunless --keep-traces (onnxruntime's JSON traces) or an untrained export for a profile with no\n"
             "model (--profiles cart-0.2: needs torch; its .onnx is written under OUT/models and named)."
         ),
@@ -59,14 +59,14 @@ def register(subparsers) -> None:
     p.add_argument(
         "--rss-steps",
         type=int,
-        default=300,
+        default=200,
         help="steps of a RadarOdometer stream at --rss-profile in a fresh process, sampling RSS (0: none; "
         "benchmarks/soak.py runs the long leak check)",
     )
     p.add_argument(
         "--file-sweeps",
         type=int,
-        default=100,
+        default=40,
         help="sweep files streamed end to end (decode + parse + step) per model, pipelined and serially, "
         "for sweeps/s (0: none)",
     )
