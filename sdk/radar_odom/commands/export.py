@@ -150,6 +150,9 @@ def calibrate_first(checkpoint, search: str, args) -> None:
     from radar_odom_export.calibrate import is_calibrated
 
     if is_calibrated(checkpoint):
+        if args.calibration_data:
+            print(f"note: {checkpoint} is calibrated already: --calibration-data unused (`radar-odom calibrate "
+                  f"{checkpoint} DATA…` calibrates it again)", file=sys.stderr)
         return
     if args.no_calibrate:
         print(f"radar-odom export: warning: {checkpoint} was never calibrated (--no-calibrate): the model's "
@@ -160,13 +163,13 @@ def calibrate_first(checkpoint, search: str, args) -> None:
 
     from . import calibrate
 
+    fit_search = search if search in ("exhaustive", "fast") else "fast"  # calibrate fits these two (decoupled: fast)
     print(f"{checkpoint}: no calibrated covariance yet: calibrating it first, in place, as `radar-odom calibrate "
-          f"{checkpoint}` would ({search if search in ('exhaustive', 'fast') else 'fast'} search"
+          f"{checkpoint}` would ({fit_search} search"
           + (", on --calibration-data" if args.calibration_data else ", simulated held-out drives")
           + "; --no-calibrate skips this) ...", flush=True)
-    run_from_args(calibrate.default_args(
-        str(checkpoint), search=search if search in ("exhaustive", "fast") else "fast",
-        data=list(args.calibration_data or []), threads=args.threads))
+    run_from_args(calibrate.default_args(str(checkpoint), search=fit_search, data=list(args.calibration_data or []),
+                                         threads=args.threads))
 
 
 def check_opset(opset: int) -> None:
