@@ -17,7 +17,7 @@ from radar_odom.fleet.job import process_recording, publish
 from radar_odom.fleet.manifest import MANIFEST, done_row, job_key, recording_names, write_manifest
 from radar_odom.fleet.scheduler import default_threads
 
-FRAMES = 10
+FRAMES = 12  # adapt's labelling reads at least 12 sweeps
 OUTPUTS = ("estimates.csv", "trajectory.tum", "trajectory.kitti", "ground_truth.tum", "ground_truth.kitti",
            "trajectory.png")
 NO_RAY = importlib.util.find_spec("ray") is None
@@ -143,7 +143,7 @@ def test_a_fleet_on_two_nodes_completes_the_good_reports_the_bad_and_resumes(dri
     assert f"failed {bad} (after 2 attempts): " in printed.err and "none of its" in printed.err
     rows = _rows(out)
     assert rows["corrupt"]["status"] == "failed" and rows["corrupt"]["attempts"] == "2"
-    assert "none of its 10 sweeps could be used" in rows["corrupt"]["reason"]
+    assert f"none of its {FRAMES} sweeps could be used" in rows["corrupt"]["reason"]
     assert not (out / "corrupt").exists() and not [p for p in out.iterdir() if p.name.startswith(".")]
     assert (out / "fleet.md").is_file() and "corrupt" in (out / "fleet.md").read_text()
 
@@ -175,3 +175,16 @@ def test_a_fleet_on_two_nodes_completes_the_good_reports_the_bad_and_resumes(dri
     assert [rows[os.path.basename(g)]["status"] for g in good] == ["kept", "done", "kept"]
     assert kept.stat().st_mtime_ns == mtime
     assert edited.read_bytes() == (tmp_path / f"run-{os.path.basename(good[1])}" / "trajectory.tum").read_bytes()
+
+
+@pytest.mark.slow
+def test_adapt_labels_on_ray_workers_are_each_recordings_own_runtime_chain(drives, cluster, cli_model):
+    from radar_odom_export.adapt import read_recording, run_runtime
+    from radar_odom_export.adapt_labels import ray_labeller
+
+    good, _ = drives
+    got = ray_labeller(cluster.address, threads=1)(cli_model, good[:2], None, slice(None))
+    assert len(got) == 2
+    for source, (poses, rel) in zip(good[:2], got):
+        want_poses, want_rel = run_runtime(cli_model, read_recording(source).scans, 1)
+        assert np.array_equal(poses, want_poses) and np.array_equal(rel, want_rel, equal_nan=True)

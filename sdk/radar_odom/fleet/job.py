@@ -17,6 +17,7 @@ def process_recording(model, recording, out_root, name: str, options: dict, key:
     Atomic: everything is written into ``out_root/.name.tmp-*`` (same file system), the manifest
     (`manifest.write_manifest`, with ``key``) last, and only then renamed to ``out_root/name``; an error
     removes the hidden folder and propagates, leaving an earlier complete ``out_root/name`` untouched."""
+    import time
     import warnings
 
     from ..commands.run_sequence import run_sequence
@@ -25,11 +26,15 @@ def process_recording(model, recording, out_root, name: str, options: dict, key:
 
     out_root = Path(out_root)
     tmp = out_root / f".{name}.tmp-{uuid.uuid4().hex[:8]}"
+    t0 = time.perf_counter()
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", GroundTruthWarning)
             result = run_sequence(recording, model, tmp, show_progress=False, **options)
-        row = result_row(name, recording, result, warnings=[str(w.message) for w in caught])
+        row = result_row(name, recording, result)
+        # a worker's stderr is not the user's: what `run` would print as warnings goes into the row
+        row["warnings"] = " | ".join([*(str(w.message).splitlines()[0] for w in caught), *result.problems])
+        row["seconds"] = time.perf_counter() - t0  # before the manifest: its digests are a few ms of a long run
         write_manifest(tmp, key, row)
         publish(tmp, out_root / name)
     except BaseException:

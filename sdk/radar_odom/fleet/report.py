@@ -14,16 +14,17 @@ import numpy as np
 
 COLUMNS = (
     "recording", "status", "reason", "attempts", "sweeps", "estimates", "duration_s", "length_m",
-    "mean_speed_m_s", "sweeps_per_s", "translation_percent", "rotation_deg_per_m", "step_translation_m",
+    "mean_speed_m_s", "sweeps_per_s", "seconds", "translation_percent", "rotation_deg_per_m", "step_translation_m",
     "step_rotation_deg", "degenerate", "gaps", "gated", "prior_dominated", "skipped_sweeps", "clock_offset_s",
-    "heading_offset_deg", "node", "path",
+    "heading_offset_deg", "warnings", "node", "path",
 )
 DONE, KEPT, FAILED = "done", "kept", "failed"  # this run; an earlier run's outputs, valid; failed twice
 WORST_SHOWN = 5
 
 
-def result_row(name: str, recording, result, warnings=()) -> dict:
-    """The report row of a finished `run_sequence` ``result`` (`COLUMNS`; empty where unknown)."""
+def result_row(name: str, recording, result, seconds: float | str = "") -> dict:
+    """The report row of a finished `run_sequence` ``result`` (`COLUMNS`; empty where unknown); ``seconds``:
+    the recording's wall time in its worker, reading to manifest (sweeps/s is the odometry loop's alone)."""
     from ..evaluation.metrics import path_lengths_m
     from ..odometry.gaps import GAP
 
@@ -36,7 +37,7 @@ def result_row(name: str, recording, result, warnings=()) -> dict:
         "recording": name, "status": DONE, "reason": "", "attempts": 1,
         "sweeps": len(ts), "estimates": len(est), "duration_s": duration_s, "length_m": length_m,
         "mean_speed_m_s": length_m / duration_s if duration_s > 0 else "",
-        "sweeps_per_s": result.throughput.sweeps_per_s if result.throughput is not None else "",
+        "sweeps_per_s": result.throughput.sweeps_per_s if result.throughput is not None else "", "seconds": seconds,
         "translation_percent": metrics.get("translation_percent", ""),
         "rotation_deg_per_m": metrics.get("rotation_deg_per_m", ""),
         "step_translation_m": steps.get("mean_translation_m", ""),
@@ -45,7 +46,7 @@ def result_row(name: str, recording, result, warnings=()) -> dict:
         "gated": sum(e.gated for e in est), "prior_dominated": sum(e.prior_dominated for e in est),
         "skipped_sweeps": len(result.skipped),
         "clock_offset_s": ref.get("clock_offset_s", ""), "heading_offset_deg": ref.get("heading_offset_deg", ""),
-        "node": "", "path": str(recording),
+        "warnings": "", "node": "", "path": str(recording),
     }
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -30,6 +31,35 @@ def import_ray():
 
         raise MissingExtraError("ray", "fleet") from None
     return ray
+
+
+@contextmanager
+def ray_connection(address: str | None = None):
+    """Yields ``ray``, connected: to the cluster at ``address`` ("auto", "HOST:PORT"), or a local Ray started
+    for this block when None; a process already connected keeps its connection (and it stays open after).
+    Workers' output stays in Ray's logs (``log_to_driver=False``): the command line prints its own lines."""
+    import logging
+
+    ray = import_ray()
+    started = not ray.is_initialized()
+    if started:  # "local": a new Ray even where a cluster runs on this machine (None would join that one)
+        ray.init(address=address or "local", include_dashboard=False, log_to_driver=False,
+                 logging_level=logging.WARNING, configure_logging=True)
+    try:
+        yield ray
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def node_cpus(ray) -> list[float]:
+    """CPUs of each live node of the connected cluster that has any; `ConfigError` when none has."""
+    from ..errors import ConfigError
+
+    cpus = [n["Resources"].get("CPU", 0.0) for n in ray.nodes() if n["Alive"] and n["Resources"].get("CPU")]
+    if not cpus:
+        raise ConfigError("the Ray cluster has no node with CPUs to run on")
+    return cpus
 
 
 class FleetWorker:
@@ -108,26 +138,17 @@ def run_fleet(recordings, out_dir, model_path, options: dict, *, address: str | 
 
 def _run_on_ray(run: FleetRun, pending, recordings, names, keys, out_dir, model_path, options, address, threads,
                 show_progress, retries) -> None:
-    import logging
-
     from .._progress import progress
     from ..errors import ConfigError
 
-    ray = import_ray()
-    started = not ray.is_initialized()
-    if started:
-        ray.init(address=address, include_dashboard=False, log_to_driver=False, logging_level=logging.WARNING,
-                 configure_logging=True)
-    try:
-        node_cpus = [n["Resources"].get("CPU", 0.0) for n in ray.nodes() if n["Alive"] and n["Resources"].get("CPU")]
-        if not node_cpus:
-            raise ConfigError("the Ray cluster has no node with CPUs to run on")
-        run.nodes = len(node_cpus)
-        run.threads = threads or default_threads(node_cpus, len(pending))
-        slots = sum(int(c // run.threads) for c in node_cpus)
+    with ray_connection(address) as ray:
+        cpus = node_cpus(ray)
+        run.nodes = len(cpus)
+        run.threads = threads or default_threads(cpus, len(pending))
+        slots = sum(int(c // run.threads) for c in cpus)
         if slots == 0:
             raise ConfigError(f"--threads {run.threads}: no node of this cluster has that many CPUs "
-                              f"(largest: {max(node_cpus):g})")
+                              f"(largest: {max(cpus):g})")
         actor_class = ray.remote(num_cpus=run.threads, max_restarts=0)(FleetWorker)
         model_path = str(Path(model_path).resolve())
         out_root = str(out_dir.resolve())
@@ -176,6 +197,3 @@ def _run_on_ray(run: FleetRun, pending, recordings, names, keys, out_dir, model_
             # interrupted or done: the workers go (nothing is published half-way: each job renames when done)
             for actor in free + [a for a, _ in in_flight.values()]:
                 ray.kill(actor)
-    finally:
-        if started:
-            ray.shutdown()
