@@ -108,7 +108,9 @@ def write_summary(out_dir, rows: list[dict], command: str = "") -> Path:
               f"{sweeps} sweeps, {hours:.2f} h, {km:.2f} km (estimated). One row each in fleet.csv.", ""]
     if failed:
         lines += ["## Failed", ""] + [f"- `{r['recording']}` ({r['path']}): {r['reason']}" for r in failed] + [""]
-    ranked = sorted(((e[1], e[0], r) for r in ok if (e := error_of(r)) is not None), key=lambda t: -t[0])
+    # KITTI % first, then the per-step metres of drives too short for it: the two are not one scale
+    ranked = sorted(((e[1], e[0], r) for r in ok if (e := error_of(r)) is not None),
+                    key=lambda t: (t[1] != "translation_percent", -t[0]))
     if ranked:
         plot = _plot_errors(out_dir / "fleet-error.png", ranked)
         lines += ["## Worst drives", "", "| recording | error | length m | mean speed m/s | plot |",
