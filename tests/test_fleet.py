@@ -87,6 +87,7 @@ def test_publish_replaces_an_earlier_folder_whole(tmp_path):
 
 def test_a_failing_recording_leaves_nothing_behind(drives, cli_model, tmp_path):
     _, bad = drives
+    (tmp_path / ".corrupt.tmp-0dead0").mkdir()  # an attempt killed with its worker
     with pytest.raises(Exception, match="none of its"):
         process_recording(str(cli_model), bad, tmp_path, "corrupt", {"plot": False}, "k")
     assert list(tmp_path.iterdir()) == []

@@ -2,6 +2,7 @@
 manifest written there, then the folder renamed into place. No Ray here: this is what a worker calls."""
 from __future__ import annotations
 
+import glob
 import shutil
 import uuid
 from pathlib import Path
@@ -25,6 +26,9 @@ def process_recording(model, recording, out_root, name: str, options: dict, key:
     from .report import result_row
 
     out_root = Path(out_root)
+    # what an attempt killed with its worker left (one attempt per recording runs at a time: none is live)
+    for stale in [*out_root.glob(f".{glob.escape(name)}.tmp-*"), *out_root.glob(f".{glob.escape(name)}.old-*")]:
+        shutil.rmtree(stale, ignore_errors=True)
     tmp = out_root / f".{name}.tmp-{uuid.uuid4().hex[:8]}"
     t0 = time.perf_counter()
     try:
