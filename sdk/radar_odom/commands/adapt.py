@@ -56,7 +56,7 @@ def register(subparsers) -> None:
                    help="torch and onnxruntime threads (default: all cores)")
     p.add_argument("--ray", action="store_true",
                    help="label the recordings in parallel as Ray tasks (the fleet extra; a local Ray unless "
-                        "--address); training stays here (docs/fleet.md: torchrun over several nodes)")
+                        "--address); the training stays on this machine (docs/fleet.md)")
     p.add_argument("--address", default=None, metavar="auto|HOST:PORT",
                    help="label on this running Ray cluster (implies --ray); its nodes must see the recordings")
     p.add_argument("--resume", action="store_true", help="continue an interrupted run writing the same OUTPUT")
