@@ -108,6 +108,16 @@ def test_without_ray_fleet_says_in_one_line_how_to_install_it(drives, monkeypatc
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.skipif(NO_RAY, reason='the fleet extra (Ray) is not installed: pip install -e ".[fleet]"')
+def test_a_model_no_worker_could_load_is_one_error_before_anything_starts(drives, tmp_path, capsys):
+    junk = tmp_path / "junk.onnx"
+    junk.write_bytes(b"not onnx")
+    assert main(["fleet", drives[0][0], "-o", str(tmp_path / "out"), "--model", str(junk)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "cannot load this model" in err, err
+    assert not (tmp_path / "out").exists()
+
+
 # ------------------------------------------------------------------ on a two-node Ray cluster
 @pytest.fixture(scope="module")
 def cluster():

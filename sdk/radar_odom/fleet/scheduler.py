@@ -12,7 +12,7 @@ from __future__ import annotations
 import time
 from collections import deque
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 from .job import one_line, process_recording
@@ -101,7 +101,6 @@ class FleetRun:
     threads: int = 0
     workers: int = 0
     nodes: int = 0
-    per_node: dict = field(default_factory=dict)  # node id → recordings done there this run
 
     @property
     def failed(self) -> list:
@@ -114,11 +113,14 @@ def run_fleet(recordings, out_dir, model_path, options: dict, *, address: str | 
     each into ``out_dir/<name>``; skip those whose outputs are complete and valid for their inputs, the
     model and the options (`manifest.done_row`). ``address``: None starts a local Ray (unless this process
     is connected already), else ``"auto"`` or ``HOST:PORT`` of a running cluster."""
+    from ..onnx_model import OnnxModel
+
     t0 = time.perf_counter()
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    OnnxModel(model_path, 1)  # a model no worker could load: its one-line error first, not one per recording
     recordings = [str(r) for r in recordings]
     names = recording_names(recordings)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
     model_sha = file_sha256(model_path)
     keys = [job_key(r, model_sha, options) for r in recordings]
     rows: list = [None] * len(recordings)
@@ -140,7 +142,6 @@ def _run_on_ray(run: FleetRun, pending, recordings, names, keys, out_dir, model_
                 show_progress, retries) -> None:
     from .._progress import progress
     from ..errors import ConfigError
-
     with ray_connection(address) as ray:
         cpus = node_cpus(ray)
         run.nodes = len(cpus)
@@ -180,7 +181,6 @@ def _run_on_ray(run: FleetRun, pending, recordings, names, keys, out_dir, model_
                         row = result["row"]
                         row["attempts"] = attempts[i]
                         run.rows[i] = row
-                        run.per_node[row["node"]] = run.per_node.get(row["node"], 0) + 1
                         sweeps += int(row["sweeps"])
                         bar.update(1)
                     elif attempts[i] <= retries:
