@@ -122,7 +122,8 @@ ALLOWED_FOLDERS = {
     "evaluation": {"io"},    # the GNSS/INS reference through io.gnss_ins
     "latency": {"odometry", "io", "evaluation", "sim"},  # profiles on simulated sweeps
     "sim": {"io", "evaluation"},
-    "commands": {"odometry", "io", "ros", "evaluation", "latency", "sim"},
+    "commands": {"odometry", "io", "ros", "evaluation", "latency", "sim", "fleet"},
+    "fleet": {"commands", "odometry", "evaluation"},  # run_sequence per recording; the report's counts and lengths
 }
 
 

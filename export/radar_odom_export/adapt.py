@@ -371,10 +371,13 @@ def check_adapt_config(cfg: AdaptConfig, output) -> None:
                           "not exist); run without --resume")
 
 
-def adapt(recordings, output, cfg: AdaptConfig, topic: str | None = None, sweeps: slice = slice(None)) -> dict:
+def adapt(recordings, output, cfg: AdaptConfig, topic: str | None = None, sweeps: slice = slice(None),
+          labeller=None) -> dict:
     """Fine-tune ``cfg.base`` on ``recordings`` (folders or bags, no reference needed), write
     ``output`` (.onnx, the base's search and form), the checkpoint beside it (``.pt``) and a report
-    (``.adapt.json``); returns the report. See the module docstring for the method."""
+    (``.adapt.json``); returns the report. See the module docstring for the method. ``labeller``: None
+    labels the recordings one after the other here, else ``labeller(base_onnx, recordings, topic, sweeps)``
+    gives every recording's (poses, relative poses) at once (`adapt_labels.ray_labeller`: Ray workers)."""
     import torch
 
     from .checkpoint import read_checkpoint_dict, write_checkpoint_dict
@@ -396,10 +399,12 @@ def adapt(recordings, output, cfg: AdaptConfig, topic: str | None = None, sweeps
 
     profile = GridProfile.from_dict(base["profile"])
 
+    labelled = None if labeller is None else labeller(base_onnx, recordings, topic, sweeps)
     recs = [read_recording(r, topic, sweeps) for r in recordings]
     drives, held = [], []
-    for rec in recs:
-        rec.poses, rel = run_runtime(base_onnx, rec.scans, threads, desc=f"pseudo-labels {rec.name}")
+    for k, rec in enumerate(recs):
+        rec.poses, rel = labelled[k] if labelled is not None else run_runtime(
+            base_onnx, rec.scans, threads, desc=f"pseudo-labels {rec.name}")
         labels = vehicle_chord(rel) if cfg.vehicle_prior else rel
         cut = holdout_split(len(rec.scans), cfg.holdout_fraction)
         images = np.stack([scan_to_cartesian(s, profile).astype(np.float16)

@@ -11,6 +11,7 @@ COMMANDS: list[str] = [
     "train",
     "calibrate",
     "adapt",
+    "fleet",
     "simulate",
     "profile",
 ]

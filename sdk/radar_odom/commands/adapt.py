@@ -54,6 +54,11 @@ def register(subparsers) -> None:
     p.add_argument("--topic", default=None, help="the radar topic of a ROS bag (default: its only radar topic)")
     p.add_argument("--threads", type=threads_arg, default=None,
                    help="torch and onnxruntime threads (default: all cores)")
+    p.add_argument("--ray", action="store_true",
+                   help="label the recordings in parallel as Ray tasks (the fleet extra; a local Ray unless "
+                        "--address); the training stays on this machine (docs/fleet.md)")
+    p.add_argument("--address", default=None, metavar="auto|HOST:PORT",
+                   help="label on this running Ray cluster (implies --ray); its nodes must see the recordings")
     p.add_argument("--resume", action="store_true", help="continue an interrupted run writing the same OUTPUT")
     p.add_argument("--force", action="store_true", help="overwrite OUTPUT if it exists")
     p.set_defaults(func=run)
@@ -78,8 +83,17 @@ def run(args) -> int:
                       vehicle_prior=not args.no_vehicle_prior, threads=args.threads, resume=args.resume, keep=args.keep,
                       info={"command": "radar-odom adapt " + " ".join(Path(r).name for r in args.recordings)
                                     + (f" --sweeps {args.sweeps}" if args.sweeps else "")})
+    labeller = None
+    if args.ray or args.address:
+        from radar_odom_export.adapt_labels import ray_labeller
+
+        from ..fleet.scheduler import import_ray
+
+        import_ray()  # the install line now, not after the base model is prepared
+        labeller = ray_labeller(args.address)
     with cli_warnings("adapt"):
-        report = adapt(args.recordings, out, cfg, topic=args.topic, sweeps=parse_sweeps(args.sweeps))
+        report = adapt(args.recordings, out, cfg, topic=args.topic, sweeps=parse_sweeps(args.sweeps),
+                       labeller=labeller)
     print(format_report(report))
     print(f"wrote {out}, {out.with_suffix('.pt')} and {out.with_suffix('.adapt.json')}")
     return 0

@@ -14,10 +14,6 @@ EPILOG = (
 
 
 def register(subparsers) -> None:
-    import argparse
-
-    from ..odometry.odometer import DESKEW_DEFAULT
-
     p = subparsers.add_parser(
         "run", help=HELP,
         description=HELP + ". Prints the KITTI odometry metric when the recording has ground truth "
@@ -38,10 +34,26 @@ def register(subparsers) -> None:
     p.add_argument("--overwrite", action="store_true",
                    help="replace an earlier run's outputs in the output folder (without it, a folder that holds "
                         "them is refused)")
+    p.add_argument("--threads", type=threads_arg, default=None, help="onnxruntime threads (default: physical cores)")
+    bags = register_recording_options(p)
+    bags.add_argument("--bag-out", default=None, metavar="PATH",
+                      help="also write the odometry as a ROS 2 bag (MCAP) folder: nav_msgs/Odometry on "
+                           "/radar_odom/odometry (3x3 covariance in the x, y, yaw cells of the 6x6) and TF odom -> "
+                           "base_link on /tf, stamped with the sweeps' header stamps")
+    p.set_defaults(func=run)
+
+
+def register_recording_options(p):
+    """The options that say how one recording is processed (everything but where it and its outputs are):
+    `radar-odom run`'s, and the per-recording options of `radar-odom fleet` (`sequence_options`). Returns
+    the group of the ROS bag options."""
+    import argparse
+
+    from ..odometry.odometer import DESKEW_DEFAULT
+
     p.add_argument("--keep-stamps", action="store_true",
                    help="keep the sweep stamps as recorded (RADIATE, bags): no time base fitted on the sensor's "
                         "period, late host stamps not put back (repair_stamps=False)")
-    p.add_argument("--threads", type=threads_arg, default=None, help="onnxruntime threads (default: physical cores)")
     p.add_argument("--max-gap-s", type=float, default=None,
                    help="stop the run with an error at a larger time (s) between consecutive sweeps (default: "
                         "none; every gap is crossed, its estimate flagged 'gap' and listed at the end)")
@@ -75,11 +87,10 @@ def register(subparsers) -> None:
     p.add_argument("--no-motion-prior", action="store_true",
                    help="report the raw matches: no fusion with the constant-velocity motion prior "
                         "(on by default; see radar_odom.odometry.motion_prior)")
-    _register_bag_options(p)
-    p.set_defaults(func=run)
+    return _register_bag_options(p)
 
 
-def _register_bag_options(p) -> None:
+def _register_bag_options(p):
     from ..ros.msgs import NAVTECH_SWEEP_PERIOD_S, STAMP_POSITIONS
     from ..scan import OXFORD_ENCODER_SIZE, OXFORD_RANGE_RESOLUTION_M
 
@@ -89,10 +100,6 @@ def _register_bag_options(p) -> None:
     g.add_argument("--topic", default=None,
                    help="the radar topic, e.g. /Navtech/Polar (default: the bag's only radar topic; a wrong one "
                         "lists the topics there are)")
-    g.add_argument("--bag-out", default=None, metavar="PATH",
-                   help="also write the odometry as a ROS 2 bag (MCAP) folder: nav_msgs/Odometry on "
-                        "/radar_odom/odometry (3x3 covariance in the x, y, yaw cells of the 6x6) and TF odom -> "
-                        "base_link on /tf, stamped with the sweeps' header stamps")
     g.add_argument("--range-resolution-m", type=float, default=None,
                    help=f"metres per range bin (column) (default {OXFORD_RANGE_RESOLUTION_M}, Oxford; MulRan 0.0595)")
     g.add_argument("--range-offset-m", type=float, default=None, help="range of column 0, m (default 0)")
@@ -106,6 +113,7 @@ def _register_bag_options(p) -> None:
                    help="angle of an Image's row 0, rad (default 0)")
     g.add_argument("--encoder-size", type=int, default=None,
                    help=f"encoder ticks per turn of a B-scan's encoder_values (default {OXFORD_ENCODER_SIZE})")
+    return g
 
 
 BAG_OPTIONS = ("range_resolution_m", "range_offset_m", "sweep_period_s", "stamp", "azimuth_offset_rad",
@@ -134,21 +142,13 @@ def run(args) -> int:
     if earlier and not args.overwrite:
         raise OutputError(f"{out} holds an earlier run's outputs ({', '.join(earlier)}); pass --overwrite to replace "
                           "them, or -o to write elsewhere")
-    bag_geometry = {k: getattr(args, k) for k in BAG_OPTIONS if getattr(args, k, None) is not None}
     # the GNSS/INS options are checked before the recording is read (minutes for a long one)
-    time_offset_s = _offset(args.gt_time_offset, "--gt-time-offset")
-    heading_offset_deg = _offset(args.gt_heading_offset_deg, "--gt-heading-offset-deg", limit=360.0)
+    options = sequence_options(args)
+    time_offset_s, heading_offset_deg = options["gt_time_offset"], options["gt_heading_offset_deg"]
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", GroundTruthWarning)
         try:
-            result = run_sequence(args.sequence, model, out, threads=args.threads, max_gap_s=args.max_gap_s,
-                                  plot=not args.no_plot, motion_prior=not args.no_motion_prior,
-                                  on_error=args.on_error, prefetch=0 if args.no_pipeline else DEFAULT_PREFETCH,
-                                  deskew=args.deskew, centre_yaw=args.centre_yaw,
-                                  gt_time_offset=time_offset_s,
-                                  gt_heading_offset_deg=heading_offset_deg,
-                                  topic=args.topic, bag_geometry=bag_geometry, bag_out=args.bag_out,
-                                  repair_stamps=not args.keep_stamps)
+            result = run_sequence(args.sequence, model, out, threads=args.threads, bag_out=args.bag_out, **options)
         except RadarOdomError:
             _print_warnings(caught, sys.stderr)
             raise
@@ -201,6 +201,22 @@ def run(args) -> int:
               f"(bridged, flagged degenerate); exit status {EXIT_SKIPPED}", file=sys.stderr)
         return EXIT_SKIPPED
     return EXIT_OK
+
+
+def sequence_options(args) -> dict:
+    """`run_sequence`'s keyword arguments for the options of `register_recording_options` in ``args``, but
+    ``threads`` (`run`'s own option: the pace, not the outputs): what `run` passes, and what `radar-odom fleet`
+    passes for each recording, so that both write the same outputs. `ConfigError` for a malformed GNSS/INS offset."""
+    from ..odometry.pipeline import DEFAULT_PREFETCH
+
+    return dict(max_gap_s=args.max_gap_s, plot=not args.no_plot, motion_prior=not args.no_motion_prior,
+                on_error=args.on_error, prefetch=0 if args.no_pipeline else DEFAULT_PREFETCH,
+                deskew=args.deskew, centre_yaw=args.centre_yaw,
+                gt_time_offset=_offset(args.gt_time_offset, "--gt-time-offset"),
+                gt_heading_offset_deg=_offset(args.gt_heading_offset_deg, "--gt-heading-offset-deg", limit=360.0),
+                topic=args.topic,
+                bag_geometry={k: getattr(args, k) for k in BAG_OPTIONS if getattr(args, k, None) is not None},
+                repair_stamps=not args.keep_stamps)
 
 
 def _offset(text: str, flag: str, limit: float | None = None):

@@ -1,0 +1,93 @@
+"""What makes a fleet recording's outputs "done": a key over its inputs, the model and the options, and a
+manifest beside the outputs that lists every file with its digest.
+
+A recording is skipped on a re-run only when ``OUT/<name>/fleet-done.json`` exists, was written for the same
+key, and every output it lists is there with the size and SHA-256 it recorded: a folder from an interrupted
+run, an edited output or a changed input (a new sweep, another model, another option) is done again.
+
+Inputs are keyed by each file's relative path, size and modification time (as make and rsync do), not by
+its content: reading every sweep of a 30-minute drive to decide whether to skip it would cost as much as
+a good part of running it. The model file is keyed by its content (a few MB).
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+MANIFEST = "fleet-done.json"
+MANIFEST_VERSION = 1
+
+
+def file_sha256(path) -> str:
+    """SHA-256 hex of a file's bytes, read in 1 MiB blocks."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def inputs_digest(recording) -> str:
+    """SHA-256 hex over (relative path, size, mtime ns) of every file of ``recording`` (a folder, walked in
+    sorted order, or one file such as a bag); a missing path digests as such (it then fails to run)."""
+    root = Path(recording)
+    h = hashlib.sha256()
+    files = sorted(p for p in root.rglob("*") if p.is_file()) if root.is_dir() else [root] if root.exists() else []
+    for p in files:
+        st = p.stat()
+        rel = p.name if p == root else p.relative_to(root).as_posix()
+        h.update(f"{rel}\0{st.st_size}\0{st.st_mtime_ns}\n".encode())
+    return h.hexdigest()
+
+
+def job_key(recording, model_sha256: str, options: dict) -> str:
+    """The key a recording's outputs are valid for: its inputs, the model's content and the run options
+    (JSON, sorted keys; only those that change the outputs: not threads)."""
+    text = json.dumps({"inputs": inputs_digest(recording), "model": model_sha256, "options": options},
+                      sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def write_manifest(folder, key: str, row: dict) -> Path:
+    """``folder/fleet-done.json``: the key, the report row, and every other file in ``folder`` with its size
+    and SHA-256. Written last, inside the folder before it is renamed into place."""
+    folder = Path(folder)
+    files = {p.name: {"bytes": p.stat().st_size, "sha256": file_sha256(p)}
+             for p in sorted(folder.iterdir()) if p.is_file() and p.name != MANIFEST}
+    path = folder / MANIFEST
+    path.write_text(json.dumps({"version": MANIFEST_VERSION, "key": key, "row": row, "files": files}, indent=1))
+    return path
+
+
+def done_row(folder, key: str) -> dict | None:
+    """The report row stored in ``folder``'s manifest when its outputs are complete and valid for ``key``
+    (every listed file present with its size and digest), else None (not done: process it again)."""
+    folder = Path(folder)
+    try:
+        manifest = json.loads((folder / MANIFEST).read_text())
+        if manifest.get("version") != MANIFEST_VERSION or manifest.get("key") != key:
+            return None
+        for name, want in manifest["files"].items():
+            path = folder / name
+            if not path.is_file() or path.stat().st_size != want["bytes"] or file_sha256(path) != want["sha256"]:
+                return None
+        return dict(manifest["row"])
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):  # missing, half-written or edited: not done
+        return None
+
+
+def recording_names(recordings) -> list[str]:
+    """One output folder name per recording: its own name, or ``<parent>-<name>`` where two recordings share
+    a name (two vehicles' ``2019-01-10``); `ConfigError` where even those collide (the same path twice)."""
+    from ..errors import ConfigError
+
+    paths = [Path(r).resolve() for r in recordings]
+    names = [p.name for p in paths]
+    names = [f"{p.parent.name}-{p.name}" if names.count(p.name) > 1 else p.name for p in paths]
+    seen: dict[str, str] = {}
+    for r, name in zip(recordings, names):
+        if name in seen:
+            raise ConfigError(f"{r} and {seen[name]} would both write to OUT/{name}; give each recording once")
+        seen[name] = str(r)
+    return names
