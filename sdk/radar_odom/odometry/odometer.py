@@ -194,8 +194,9 @@ class RadarOdometer:
         self._prior_cov = window_covariance(self.profile)
         self._lock = threading.RLock()
         self.sweep_region_m = model_region_m(self.info)
-        # a polar model's graph reads the sweep as recorded: neither de-skew nor a moved frame
-        self._movable = self.profile.input_kind != "polar"
+        # a polar model's graph reads the sweep as recorded, a sweep-form graph draws it as recorded: neither
+        # de-skew nor a moved frame (nor the gap crossing and yaw centring, which draw the sweep moved)
+        self._movable = self.profile.input_kind != "polar" and self.info.form != "sweep"
         self.deskew = bool(deskew) and self._movable
         if centre_yaw is None:
             centre_yaw = CENTRE_YAW_DEFAULT
