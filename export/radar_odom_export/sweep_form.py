@@ -35,9 +35,11 @@ file: the shipped ones too, no torch needed); `write_sweep_form` writes and chec
 """
 from __future__ import annotations
 
+import json
 import math
 import os
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -224,13 +226,59 @@ def wrap_stream_model(stream):
     return merged
 
 
-def write_sweep_form(stream, path) -> Path:
-    """Write the sweep form of ``stream`` (`wrap_stream_model`) to ``path``, checked as every export is
-    (`onnx_export.check_onnx_file`) and loaded as the runtime loads it, atomically (a temporary file
-    renamed over ``path`` once every check passed)."""
+# how far the sweep form's poses may be from the SDK path's (stream graph on `polar_to_cartesian`'s image)
+PARITY_POSE_M, PARITY_YAW_RAD = 1e-3, 1e-4
+VERIFY_SWEEPS = 3  # simulated sweeps (seed `VERIFY_SEED`) an export is checked on: two matches after the first
+VERIFY_SEED = 1
+
+
+@dataclass
+class SweepFormReport:
+    """What `write_sweep_form` wrote: the file, its metadata and, when verified, the largest pose difference
+    from the SDK path (m for x/y, rad for yaw) over `VERIFY_SWEEPS` simulated sweeps."""
+
+    path: Path
+    metadata: dict
+    max_dxy_m: float | None = None
+    max_dyaw_rad: float | None = None
+
+    def summary(self) -> str:
+        text = f"sweep form: wrote {self.path} (inputs {json.loads(self.metadata['radar_odom.inputs'])})"
+        if self.max_dxy_m is not None:
+            text += (f"; check: against the stream graph on the SDK's Cartesian image, max |Δx, Δy| = "
+                     f"{self.max_dxy_m:.2e} m, |Δyaw| = {self.max_dyaw_rad:.2e} rad ({VERIFY_SWEEPS} simulated sweeps)")
+        return text
+
+
+def parity(sweep_model, stream_model, scans) -> tuple[float, float]:
+    """(max |Δx, Δy| m, max |Δyaw| rad) between the graph poses of a sweep-form model and of a stream-form one
+    fed the SDK's Cartesian images (`OnnxModel`s), each chaining its own state over ``scans`` (RadarScans)."""
+    from radar_odom.odometry.graph_step import GraphStep
+    from radar_odom.odometry.sweep_input import graph_input
+
+    steps = [GraphStep(m) for m in (sweep_model, stream_model)]
+    refs = [step.first(graph_input(scans[0], step.info)) for step in steps]
+    dxy = dyaw = 0.0
+    for scan in scans[1:]:
+        out = [step.match(graph_input(scan, step.info), ref) for step, ref in zip(steps, refs)]
+        if any(o is None for o in out):
+            raise ExportError("the sweep form or its stream graph gives a non-finite pose on a simulated sweep")
+        d = np.abs(out[0][0] - out[1][0])
+        dxy, dyaw = max(dxy, float(d[:2].max())), max(dyaw, float(d[2]))
+        refs = [o[2] for o in out]
+    return dxy, dyaw
+
+
+def write_sweep_form(stream, path, verify: bool = True) -> SweepFormReport:
+    """Write the sweep form of ``stream`` (a path; `wrap_stream_model`) to ``path``, checked as every export is
+    (`onnx_export.check_onnx_file`), loaded as the runtime loads it and, with ``verify``, its poses held to the
+    stream graph's on the SDK's images over `VERIFY_SWEEPS` simulated sweeps (`parity`; `ExportError` beyond
+    `PARITY_POSE_M` / `PARITY_YAW_RAD`). Atomic: a temporary file renamed over ``path`` once every check passed."""
     import onnx
 
-    from .onnx_export import check_onnx_file, onnx_opset
+    from radar_odom.onnx_model import OnnxModel
+
+    from .onnx_export import _file_mode, check_onnx_file, onnx_opset
 
     proto = wrap_stream_model(stream)
     path = Path(path)
@@ -238,14 +286,24 @@ def write_sweep_form(stream, path) -> Path:
     fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
     os.close(fd)
     tmp = Path(tmp_name)
+    os.chmod(tmp, _file_mode(path))  # mkstemp makes it private; the result is an ordinary file
     try:
         onnx.save(proto, str(tmp))
         check_onnx_file(tmp, onnx_opset(proto))
-        from radar_odom.onnx_model import OnnxModel
+        model = OnnxModel(tmp, threads=1)  # metadata and signature, as the runtime holds them
+        report = SweepFormReport(path, dict(model.session.get_modelmeta().custom_metadata_map))
+        if verify:
+            from radar_odom.sim import simulate_drive
 
-        OnnxModel(tmp, threads=1)  # metadata and signature, as the runtime holds them
+            scans = [f.scan for f in simulate_drive(seed=VERIFY_SEED, frames=VERIFY_SWEEPS)]
+            report.max_dxy_m, report.max_dyaw_rad = parity(model, OnnxModel(stream, threads=1), scans)
+            if report.max_dxy_m > PARITY_POSE_M or report.max_dyaw_rad > PARITY_YAW_RAD:
+                raise ExportError(
+                    f"the sweep form's poses differ from the stream graph's on the SDK's images by "
+                    f"{report.max_dxy_m:.3g} m / {report.max_dyaw_rad:.3g} rad (tolerance {PARITY_POSE_M:g} m / "
+                    f"{PARITY_YAW_RAD:g} rad): the in-graph drawing is not the SDK's; nothing was written")
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
-    return path
+    return report
