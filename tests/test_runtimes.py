@@ -70,3 +70,18 @@ def test_node_program_prints_the_python_sdks_poses(sweep_form_models, tmp_path):
     assert lines[0]["pose"] is None
     # the Python SDK's default path: the shipped stream graph on polar_to_cartesian's image
     _assert_same_poses([line["pose"] for line in lines[1:]], _poses(radar_odom.pretrained("cart-0.4"), scans))
+
+
+@pytest.mark.portability
+@pytest.mark.slow
+def test_profile_times_the_sweep_form_on_openvino(sweep_form_models):
+    pytest.importorskip("openvino", reason="openvino (the dev extra) is not installed")
+    from radar_odom.latency.sweeps import simulated_pngs
+    from radar_odom.latency.timing import profile_model
+
+    r = profile_model(sweep_form_models["cart-0.8"], simulated_pngs(3), steps=3, warmup=1, threads=1,
+                      reference_steps=2, operator_steps=5, progress_bar=False, runtime="openvino")
+    assert r.stages["graph"]["n"] == 3 and r.stages["graph"]["median"] > 0
+    assert not r.operators and any("openvino" in n for n in r.notes)  # onnxruntime's profiler only
+    # the graph's poses are the numpy search's on its own masked images (the state chain ran on OpenVINO)
+    assert r.reference["same_search"]["pose_diff_median"]["x_m"] < 0.5

@@ -34,6 +34,9 @@ def register(subparsers) -> None:
     p.add_argument(
         "--threads", type=threads_arg, default=None, help="onnxruntime threads (default: physical cores)%(default).0s"
     )
+    p.add_argument("--runtime", choices=("onnxruntime", "openvino"), default="onnxruntime",
+                   help="runtime the stream steps run on (openvino: its own runtime, radar_odom.runtimes; the "
+                        "operator table and the file throughput stay onnxruntime's and are left out)")
     p.add_argument("--steps", type=int, default=200, help="timed stream steps per model")
     p.add_argument("--warmup", type=int, default=20, help="untimed steps first")
     p.add_argument(
@@ -112,5 +115,6 @@ def run(args) -> int:
         out_dir=args.output,
         command="radar-odom " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
         progress_bar=not args.no_progress,
+        runtime=args.runtime,
     )
     return 0

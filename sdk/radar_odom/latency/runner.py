@@ -35,9 +35,11 @@ def run_profile(
     command: str | None = None,
     echo=print,
     progress_bar=True,
+    runtime: str = "onnxruntime",
 ) -> dict:
     """Profile every model (see `resolve_models`), write ``profile.json`` and ``profile.md`` in
-    ``out_dir``, and return the report dictionary."""
+    ``out_dir``, and return the report dictionary. ``runtime``: onnxruntime or openvino (`radar_odom.runtimes`:
+    the stream steps and the numpy reference; operators and file throughput are onnxruntime's only)."""
     from ..errors import ConfigError
     from ..onnx_model import physical_cores
 
@@ -71,8 +73,9 @@ def run_profile(
             untrained=untrained,
             progress_bar=progress_bar,
             echo=echo,
+            runtime=runtime,
         )
-        if file_sweeps > 0:
+        if file_sweeps > 0 and runtime == "onnxruntime":
             echo(f"{label}: {file_sweeps} sweeps from PNG files, pipelined and serial ...")
             r.files = file_throughput(path, pngs, sweeps=file_sweeps, threads=threads)
         echo(summary_line(r))
@@ -84,6 +87,7 @@ def run_profile(
             "steps": steps,
             "warmup": warmup,
             "threads": threads,
+            "runtime": runtime,
             "reference_steps": reference_steps,
             "operator_steps": operator_steps,
             "distinct_sweeps": distinct_sweeps,
@@ -188,6 +192,7 @@ def markdown_report(report: dict) -> str:
         lines += [f"Command: `{report['command']}`", ""]
     lines += [
         f"Machine: {format_machine(report['machine'])}.",
+        f"Runtime: {st.get('runtime', 'onnxruntime')}. "
         f"Sweeps: {st['sweeps']} ({st['distinct_sweeps']} distinct, cycled). Times in ms as "
         f"median / p90 / p99 over {st['steps']} steps after {st['warmup']} warm-up steps; "
         f"numpy-FFT references over {st['reference_steps']} steps. The references search the masked "
