@@ -266,6 +266,37 @@ def test_export_command_picks_the_fast_search_for_the_sequence_form(tmp_path, mo
     assert [(a["form"], a["search"]) for a in asked] == [("sequence", "fast"), (None, "exhaustive")]
 
 
+def test_export_command_writes_the_sweep_form(tmp_path, capsys):
+    """--form sweep: the stream graph with the drawing in front, checked against the SDK path before it is written;
+    nothing but the output is left beside it."""
+    from radar_odom.commands.cli import main
+    from radar_odom_export.checkpoint import save_checkpoint
+
+    ckpt = save_checkpoint(tmp_path / "m.pt", seeded_model(TINY), "learned", train={})
+    out = tmp_path / "m-sweep.onnx"
+    assert main(["export", str(ckpt), "--form", "sweep", "-o", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "sweep form: wrote" in printed and "against the stream graph on the SDK's Cartesian image" in printed
+    info = OnnxModel(out).info
+    assert info.form == "sweep" and info.inputs[0] == "power" and info.masking == "learned"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m-sweep.onnx", "m.pt"]
+
+
+def test_export_command_keeps_a_shipped_models_search_in_the_sweep_form(tmp_path, monkeypatch):
+    from radar_odom.commands.cli import main
+    from radar_odom.model_zoo import shipped_export
+
+    asked = []
+    monkeypatch.setattr(onnx_export, "export_checkpoint",
+                        lambda ckpt, out, **kw: asked.append((out, kw)) or SimpleNamespace(summary=lambda: "ok"))
+    monkeypatch.chdir(tmp_path)
+    assert main(["export", "cart-0.4", "--form", "sweep"]) == 0
+    shipped = shipped_export("cart-0.4")
+    out, kw = asked[0]
+    assert str(out) == "cart-0.4-sweep.onnx" and kw["form"] == "sweep"
+    assert kw["search"] == shipped["search"] and kw["search_settings"] == shipped["settings"]
+
+
 def test_export_command_reports_a_bad_checkpoint(tmp_path, capsys):
     from radar_odom.commands.cli import main
 

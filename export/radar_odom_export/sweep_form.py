@@ -37,8 +37,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -278,20 +276,14 @@ def write_sweep_form(stream, path, verify: bool = True) -> SweepFormReport:
 
     from radar_odom.onnx_model import OnnxModel
 
-    from .onnx_export import _file_mode, check_onnx_file, onnx_opset
+    from .onnx_export import atomic_file, check_onnx_file, onnx_opset
 
     proto = wrap_stream_model(stream)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
-    os.close(fd)
-    tmp = Path(tmp_name)
-    os.chmod(tmp, _file_mode(path))  # mkstemp makes it private; the result is an ordinary file
-    try:
+    with atomic_file(Path(path)) as tmp:
         onnx.save(proto, str(tmp))
         check_onnx_file(tmp, onnx_opset(proto))
         model = OnnxModel(tmp, threads=1)  # metadata and signature, as the runtime holds them
-        report = SweepFormReport(path, dict(model.session.get_modelmeta().custom_metadata_map))
+        report = SweepFormReport(Path(path), dict(model.session.get_modelmeta().custom_metadata_map))
         if verify:
             from radar_odom.sim import simulate_drive
 
@@ -302,8 +294,4 @@ def write_sweep_form(stream, path, verify: bool = True) -> SweepFormReport:
                     f"the sweep form's poses differ from the stream graph's on the SDK's images by "
                     f"{report.max_dxy_m:.3g} m / {report.max_dyaw_rad:.3g} rad (tolerance {PARITY_POSE_M:g} m / "
                     f"{PARITY_YAW_RAD:g} rad): the in-graph drawing is not the SDK's; nothing was written")
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
     return report
