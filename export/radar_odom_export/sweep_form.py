@@ -15,20 +15,24 @@ How it draws (the SDK's geometry: `radar_odom.polar`): each pixel's range and be
 the grid (computed in float64, stored as float32); its range bin is ``u = (ρ − offset − res/2)/res``
 clamped to [0, B]; its row ``v`` places the bearing on the seam-extended azimuth list (last row −
 2π, the rows, first row + 2π) by piecewise-linear interpolation, as ``np.interp`` does. The
-interval holding each bearing is found without a per-pixel search: a table of 4·A equal bearing
-bins counts the azimuths at or below each bin's start (4A × (A + 2) comparisons per sweep), and two
-comparisons per pixel step on from there, which is exact wherever no table bin holds more than two
-azimuths (the spacing never falls below an eighth of the mean over two neighbouring rows: true of
-every Navtech sweep). The image is then the bilinear blend of the four neighbouring samples
-(``Gather`` on the flattened power with computed indices, rows wrapping at the seam, bins past the
-last and those closer than the profile's ``near_range_m`` read as zero), which is what OpenCV 5's
-``cv2.remap`` computes (OpenCV 4 rounds sample positions to 1/32 of a cell first).
+interval holding each bearing is found without a per-pixel search: a table of `TABLE_BINS` equal
+bearing bins counts the azimuths in the bins before each (ScatterElements, CumSum: O(A + T) per sweep),
+each pixel's table bin is a constant, and one comparison with the breakpoint inside its bin (at most one)
+picks the interval. That is exact wherever no table bin holds two azimuths: spacings above 360°/2048 =
+0.18° (a Navtech sweep's 400 rows are 0.9° apart). The image is then the bilinear blend of the four
+neighbouring samples (``GatherElements`` on the flattened power with computed indices, rows wrapping at
+the seam, bins past the last and those closer than the profile's ``near_range_m`` weighted zero), which
+is what OpenCV 5's ``cv2.remap`` computes (OpenCV 4 rounds sample positions to 1/32 of a cell first).
 
-Every op is in the default ONNX domain at the stream graph's opset and runs on onnxruntime (CPU,
-node, web), OpenVINO and TensorRT alike: Shape, Slice, Concat, Range, Cast, comparisons, ReduceSum,
-Gather, Mod, Floor, Min/Max and arithmetic. What the SDK does before drawing that the graph does not:
-filling short runs of dropped rows (`radar_odom.polar.fill_dropped_rows`; give dropped rows as zero
-or filled) and scaling 8-bit power by 1/255 (give float32 in [0, 1]).
+Every op is in the default ONNX domain at the stream graph's opset: Shape, Slice, Squeeze, Reshape, Concat,
+Range, ConstantOfShape, Cast, Floor, Clip, Min, arithmetic, Mod, Less, GreaterOrEqual, ScatterElements
+(reduction add), CumSum and GatherElements; tested on onnxruntime (Python and Node.js) and OpenVINO.
+``Gather`` of single elements and ``GridSample`` run 20-40x slower than ``GatherElements`` and
+``cv2.remap`` on onnxruntime's CPU provider (docs/latency.md), so neither is used.
+
+What the SDK does before drawing that the graph does not: filling short runs of dropped rows
+(`radar_odom.polar.fill_dropped_rows`; give dropped rows as zero or filled) and scaling 8-bit power by
+1/255 (give float32 in [0, 1]).
 
 `wrap_stream_model` makes a sweep-form model from a stream-form one (an ``onnx.ModelProto`` or a
 file: the shipped ones too, no torch needed); `write_sweep_form` writes and checks it.
