@@ -20,6 +20,16 @@ POSE_M, YAW_RAD = 1e-3, 1e-4  # the issue's parity bound
 SWEEPS = {"cart-0.4": 10, "cart-0.8": 6}  # a short recording each (the front end is one for both grids)
 
 
+def _needs_exact_remap():
+    """The SDK path draws with cv2.remap: OpenCV 4 rounds its sample positions to 1/32 of a cell (the SDK's own
+    poses then move by up to 4 mm, docs/sweep-form.md), OpenCV 5 samples where asked, as the graph does."""
+    import cv2
+
+    if int(cv2.__version__.split(".")[0]) < 5:
+        pytest.skip(f"OpenCV {cv2.__version__} rounds remap positions to 1/32 cell: the SDK path is not the exact "
+                    "drawing the sweep form is held to (docs/sweep-form.md)")
+
+
 def _drive(seed: int, frames: int) -> list:
     return [f.scan for f in simulate_drive(seed=seed, frames=frames)]
 
@@ -27,6 +37,7 @@ def _drive(seed: int, frames: int) -> list:
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["cart-0.4", "cart-0.8"])
 def test_poses_equal_the_sdk_path_over_a_recording(sweep_form_models, name):
+    _needs_exact_remap()
     scans = _drive(seed=11, frames=SWEEPS[name])
     sdk = RadarOdometer(radar_odom.pretrained(name), threads=1)
     graph = RadarOdometer(sweep_form_models[name], threads=1)
@@ -71,6 +82,7 @@ def _geometry_scan(rng, rows: int, bins: int, res: float, offset: float, jitter:
     dict(rows=240, bins=2000, res=0.05, offset=0.5, dropped=(0, 7, 8, 120)),  # dropped rows (filled as the SDK does)
 ])
 def test_the_graph_draws_the_sdk_image_on_any_geometry(geometry):
+    _needs_exact_remap()
     profile = get_profile("cart-0.4")
     rng = np.random.default_rng(3)
     scan = _geometry_scan(rng, **geometry)
