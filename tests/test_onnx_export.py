@@ -485,9 +485,11 @@ def test_openvino_gives_the_same_outputs(exports):
     ov = pytest.importorskip("openvino")
     _, path, _ = exports("single", "stream")
     ort_model = OnnxModel(path)
-    # OpenVINO's CPU plugin defaults to bf16 arithmetic on CPUs that have it (AMX, AVX512-BF16):
-    # the DFT matmuls need float32, as on onnxruntime, so ask for it
-    compiled = ov.Core().compile_model(str(path), "CPU", {"INFERENCE_PRECISION_HINT": "f32"})
+    from radar_odom.runtimes import OPENVINO_CPU_CONFIG
+
+    # f32 (OpenVINO's CPU plugin defaults to bf16 where the CPU has it; the DFT matmuls need float32) and no
+    # Snippets fusion (it moves the shipped graphs' poses by centimetres): radar_odom.runtimes
+    compiled = ov.Core().compile_model(str(path), "CPU", OPENVINO_CPU_CONFIG)
     frames = scene_frames(steps=2)[:, None]
     state = ort_model.run({"cart": frames[0], "prev_state": np.zeros(ort_model.info.state_shape, np.float32)})["state"]
     feeds = {"cart": frames[1], "prev_state": state}
