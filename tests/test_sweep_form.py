@@ -101,6 +101,9 @@ def test_metadata_says_the_form_and_the_schema_holds_it(sweep_form_models):
     assert info.form == "sweep" and info.inputs == (*SWEEP_INPUTS, "prev_state")
     assert info.input_shape == (info.sweep_geometry["num_azimuths"], info.sweep_geometry["num_bins"])
     assert info.state_shape == OnnxModel(radar_odom.pretrained("cart-0.4")).info.state_shape
+    # the graph draws the sweep as recorded: the odometer runs it without the options that draw it moved
+    odo = RadarOdometer(model, deskew=True, centre_yaw=True)
+    assert not odo.deskew and not odo.centre_yaw
     # a sweep form that would read another input is refused, with what to do
     meta = dict(model.session.get_modelmeta().custom_metadata_map)
     meta["radar_odom.inputs"] = '["cart", "azimuths_rad", "range_resolution_m", "range_offset_m", "prev_state"]'
