@@ -285,9 +285,10 @@ def test_export_command_writes_the_sweep_form(tmp_path, capsys):
 def test_export_command_keeps_a_shipped_models_search_in_the_sweep_form(tmp_path, monkeypatch):
     from radar_odom.commands.cli import main
     from radar_odom.model_zoo import shipped_export
+    from radar_odom_export import sweep_form
 
     asked = []
-    monkeypatch.setattr(onnx_export, "export_checkpoint",
+    monkeypatch.setattr(sweep_form, "export_sweep_checkpoint",
                         lambda ckpt, out, **kw: asked.append((out, kw)) or SimpleNamespace(summary=lambda: "ok"))
     monkeypatch.chdir(tmp_path)
     assert main(["export", "cart-0.4", "--form", "sweep"]) == 0

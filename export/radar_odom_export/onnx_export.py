@@ -631,8 +631,8 @@ def export_checkpoint(checkpoint, path, *, form: str | None = None, opset: int =
                       search_settings: dict | None = None) -> ExportReport:
     """Export a checkpoint written by `radar-odom train` (calibrated β included).
 
-    ``form`` defaults to ``"stream"`` (in dual mode the stream state is the previous sweep); ``"sweep"``
-    writes the stream form with the polar→Cartesian drawing inside (`sweep_form.write_sweep_form`).
+    ``form`` defaults to ``"stream"`` (in dual mode the stream state is the previous sweep); the sweep form
+    is `sweep_form.export_sweep_checkpoint`'s.
     ``search="fast"`` writes the stream form with the coarse-to-fine yaw search of
     `fast_search.FastStreamStep` (default settings for the profile) instead of scoring every yaw
     candidate; ``search="decoupled"`` the stream form with the decoupled search of
@@ -653,19 +653,6 @@ def export_checkpoint(checkpoint, path, *, form: str | None = None, opset: int =
                           "exhaustive (pair) / fast (sequence)")
     if form == "sequence" and search != "fast":
         raise ExportError("the sequence form searches with the fast search only; add --search fast")
-    if form == "sweep":  # the stream form with the drawing in front (`sweep_form`)
-        from .sweep_form import write_sweep_form
-
-        with tempfile.TemporaryDirectory(prefix=".sweep-form-", dir=Path(path).parent) as tmp:
-            report = export_checkpoint(checkpoint, Path(tmp) / "stream.onnx", form="stream", opset=opset,
-                                       verify=verify, exporter=exporter, search=search,
-                                       search_settings=search_settings)
-            sweep = write_sweep_form(report.path, path, verify=verify)
-        checked = check_onnx_file(path, opset)
-        report.notes.append(sweep.summary())
-        report.path, report.form, report.bytes, report.ops = Path(path), "sweep", checked["bytes"], checked["ops"]
-        report.metadata = sweep.metadata
-        return report
     model, meta = load_checkpoint(checkpoint, dft="fft")
     geometry = meta.get("train", {}).get("sweep_geometry")
     if geometry and model.to_cartesian is None:

@@ -299,3 +299,27 @@ def write_sweep_form(stream, path, verify: bool = True) -> SweepFormReport:
                     f"{report.max_dxy_m:.3g} m / {report.max_dyaw_rad:.3g} rad (tolerance {PARITY_POSE_M:g} m / "
                     f"{PARITY_YAW_RAD:g} rad): the in-graph drawing is not the SDK's; nothing was written")
     return report
+
+
+def export_sweep_checkpoint(checkpoint, path, *, opset: int, verify: bool = True, exporter: str = "auto",
+                            search: str = "exhaustive", search_settings: dict | None = None, form: str = "sweep"):
+    """`onnx_export.export_checkpoint`'s stream form of ``checkpoint`` (``search`` and its settings), then its
+    sweep form at ``path`` (`write_sweep_form`); returns the stream export's `ExportReport`, made to describe
+    the file written, with the sweep form's check in its notes."""
+    import tempfile
+
+    from .onnx_export import check_onnx_file, export_checkpoint
+
+    if form != "sweep":
+        raise ExportError(f"export_sweep_checkpoint writes the sweep form, not {form!r}")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix=".sweep-form-", dir=path.parent) as tmp:
+        report = export_checkpoint(checkpoint, Path(tmp) / "stream.onnx", form="stream", opset=opset, verify=verify,
+                                   exporter=exporter, search=search, search_settings=search_settings)
+        sweep = write_sweep_form(report.path, path, verify=verify)
+    checked = check_onnx_file(path, opset)
+    report.notes.append(sweep.summary())
+    report.path, report.form, report.bytes, report.ops = path, "sweep", checked["bytes"], checked["ops"]
+    report.metadata = sweep.metadata
+    return report

@@ -97,6 +97,11 @@ def run(args) -> int:
                   exporter=args.exporter)
     if settings is not None:
         common["search_settings"] = settings
+    if args.quantize and form == "sweep":
+        from ..errors import ConfigError
+
+        raise ConfigError("--quantize writes the stream form only; the sweep form of an int8 graph is not made "
+                          "(leave out --quantize, or --form)")
     if args.quantize:
         try:
             from radar_odom_export.quantize import export_quantized
@@ -107,6 +112,8 @@ def run(args) -> int:
         print(fp32.summary().replace(f"wrote {fp32.path}", "exported (float32, temporary)"))
         print(quant.summary())
         return 0
+    if form == "sweep":  # the stream graph with the polar→Cartesian drawing in front (docs/sweep-form.md)
+        from radar_odom_export.sweep_form import export_sweep_checkpoint as export_checkpoint
     report = export_checkpoint(ckpt, out, **common)
     print(report.summary())
     return 0
