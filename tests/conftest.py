@@ -99,6 +99,24 @@ def foreign_model() -> Path:
     return fixture_file("foreign.onnx")
 
 
+@pytest.fixture(scope="session")
+def sweep_form_models(tmp_path_factory) -> dict:
+    """{"cart-0.4": path, "cart-0.8": path}: the shipped stream graphs in the sweep form (docs/sweep-form.md),
+    wrapped with onnx (no torch); skips where onnx is absent (the torch-free job: the runtime alone)."""
+    pytest.importorskip("onnx", reason="onnx (the export extra) builds the sweep form")
+    import onnx
+
+    import radar_odom
+    from radar_odom_export.sweep_form import wrap_stream_model
+
+    out = tmp_path_factory.mktemp("sweep-form")
+    paths = {}
+    for name in ("cart-0.4", "cart-0.8"):
+        paths[name] = out / f"{name}-sweep.onnx"
+        onnx.save(wrap_stream_model(radar_odom.pretrained(name)), str(paths[name]))
+    return paths
+
+
 # --------------------------------------------------------------------------- the torch-free job
 def _torchless_required() -> bool:
     return os.environ.get(TORCHLESS_ENV, "") not in ("", "0")

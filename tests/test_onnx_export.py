@@ -272,6 +272,38 @@ def test_export_command_picks_the_fast_search_for_the_sequence_form(tmp_path, mo
                                                          (None, "exhaustive")]
 
 
+def test_export_command_writes_the_sweep_form(tmp_path, capsys):
+    """--form sweep: the stream graph with the drawing in front, checked against the SDK path before it is written;
+    nothing but the output is left beside it."""
+    from radar_odom.commands.cli import main
+    from radar_odom_export.checkpoint import save_checkpoint
+
+    ckpt = save_checkpoint(tmp_path / "m.pt", seeded_model(TINY), "learned", train={})
+    out = tmp_path / "m-sweep.onnx"
+    assert main(["export", str(ckpt), "--form", "sweep", "-o", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "sweep form: wrote" in printed and "against the stream graph on the SDK's Cartesian image" in printed
+    info = OnnxModel(out).info
+    assert info.form == "sweep" and info.inputs[0] == "power" and info.masking == "learned"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m-sweep.onnx", "m.pt"]
+
+
+def test_export_command_keeps_a_shipped_models_search_in_the_sweep_form(tmp_path, monkeypatch):
+    from radar_odom.commands.cli import main
+    from radar_odom.model_zoo import shipped_export
+    from radar_odom_export import sweep_form
+
+    asked = []
+    monkeypatch.setattr(sweep_form, "export_sweep_checkpoint",
+                        lambda ckpt, out, **kw: asked.append((out, kw)) or SimpleNamespace(summary=lambda: "ok"))
+    monkeypatch.chdir(tmp_path)
+    assert main(["export", "cart-0.4", "--form", "sweep"]) == 0
+    shipped = shipped_export("cart-0.4")
+    out, kw = asked[0]
+    assert str(out) == "cart-0.4-sweep.onnx" and kw["form"] == "sweep"
+    assert kw["search"] == shipped["search"] and kw["search_settings"] == shipped["settings"]
+
+
 def test_export_command_reports_a_bad_checkpoint(tmp_path, capsys):
     from radar_odom.commands.cli import main
 
@@ -460,9 +492,11 @@ def test_openvino_gives_the_same_outputs(exports):
     ov = pytest.importorskip("openvino")
     _, path, _ = exports("single", "stream")
     ort_model = OnnxModel(path)
-    # OpenVINO's CPU plugin defaults to bf16 arithmetic on CPUs that have it (AMX, AVX512-BF16):
-    # the DFT matmuls need float32, as on onnxruntime, so ask for it
-    compiled = ov.Core().compile_model(str(path), "CPU", {"INFERENCE_PRECISION_HINT": "f32"})
+    from radar_odom.runtimes import OPENVINO_CPU_CONFIG
+
+    # f32 (OpenVINO's CPU plugin defaults to bf16 where the CPU has it; the DFT matmuls need float32) and no
+    # Snippets fusion (it moves the shipped graphs' poses by centimetres): radar_odom.runtimes
+    compiled = ov.Core().compile_model(str(path), "CPU", OPENVINO_CPU_CONFIG)
     frames = scene_frames(steps=2)[:, None]
     state = ort_model.run({"cart": frames[0], "prev_state": np.zeros(ort_model.info.state_shape, np.float32)})["state"]
     feeds = {"cart": frames[1], "prev_state": state}

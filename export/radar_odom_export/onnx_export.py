@@ -51,6 +51,7 @@ the temporary file is removed and the destination is left as it was. The checks:
 """
 from __future__ import annotations
 
+import contextlib
 import copy
 import json
 import logging
@@ -416,6 +417,23 @@ def verify_graph(path, reference: nn.Module, inputs, tolerance: Tolerance = DEFA
     return dpose, dcov
 
 
+@contextlib.contextmanager
+def atomic_file(path: Path):
+    """A temporary file in ``path``'s folder (with the mode ``path`` keeps or a new file gets), renamed over
+    ``path`` when the block ends; removed, ``path`` untouched, when the block raises."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
+    os.close(fd)
+    tmp = Path(tmp_name)
+    os.chmod(tmp, _file_mode(path))  # mkstemp makes it private; the result is an ordinary file
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
 def _file_mode(path: Path) -> int:
     """The permission bits ``path`` keeps (if it exists) or an ordinary new file gets."""
     try:
@@ -451,12 +469,7 @@ def write_graph(module: nn.Module, example_inputs, path, metadata: dict, *, inpu
         if all(torch.equal(a, b) for a, b in zip(example_inputs, verify_inputs)):
             raise ValueError("verify_inputs are the traced inputs: verification needs fresh ones")
     _metadata(metadata, opset, exporter)  # refuse metadata the runtime would refuse before tracing
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
-    os.close(fd)
-    tmp = Path(tmp_name)
-    os.chmod(tmp, _file_mode(path))  # mkstemp makes it private; the result is an ordinary file
-    try:
+    with atomic_file(path) as tmp:
         module = module.eval()
         used, notes = _export_with(exporter, module, tuple(example_inputs), tmp, list(input_names),
                                    list(output_names), opset, dynamic_axes)
@@ -478,10 +491,6 @@ def write_graph(module: nn.Module, example_inputs, path, metadata: dict, *, inpu
         if verify:
             report.max_pose_diff, report.max_cov_diff = verify_graph(
                 tmp, module if reference is None else reference, tuple(verify_inputs), tolerance)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
     report.seconds = time.perf_counter() - t0
     return report
 
@@ -636,7 +645,8 @@ def export_checkpoint(checkpoint, path, *, form: str | None = None, opset: int =
                       search_settings: dict | None = None) -> ExportReport:
     """Export a checkpoint written by `radar-odom train` (calibrated β included).
 
-    ``form`` defaults to ``"stream"`` (in dual mode the stream state is the previous sweep).
+    ``form`` defaults to ``"stream"`` (in dual mode the stream state is the previous sweep); the sweep form
+    is `sweep_form.export_sweep_checkpoint`'s.
     ``search="fast"`` writes the stream form with the coarse-to-fine yaw search of
     `fast_search.FastStreamStep` (default settings for the profile) instead of scoring every yaw
     candidate; ``search="decoupled"`` the stream form with the decoupled search of

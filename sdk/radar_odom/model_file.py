@@ -13,14 +13,19 @@ The keys (`SCHEMA`; required: always, or for stream-form / polar models only):
   outputs: pose, covariance, state), ``"pair"`` (inputs: previous and current sweep; outputs:
   pose, covariance) or ``"sequence"`` (input: T consecutive sweeps, T free in the file, at least
   2; outputs: pose [T − 1, 3] and covariance [T − 1, 3, 3], one per consecutive pair: the
-  offline batch form, ``radar_odom.odometry.batch``).
+  offline batch form, ``radar_odom.odometry.batch``) or ``"sweep"`` (the self-contained form of a
+  Cartesian stream graph, for consumers outside Python: inputs ``power`` [A, B] float32 in [0, 1]
+  as recorded, ``azimuths_rad`` [A], ``range_resolution_m`` [1], ``range_offset_m`` [1] and
+  ``prev_state``; the polar→Cartesian drawing inside; outputs those of the stream form; A and B
+  are free in the file, docs/sweep-form.md).
 - ``radar_odom.sweep_geometry`` (JSON object, required): ``{num_azimuths, num_bins,
   range_resolution_m, range_offset_m}`` of the sweeps the model was trained on.
 - ``radar_odom.inputs`` / ``radar_odom.outputs`` (JSON arrays, required): tensor names, in
   graph order.
 - ``radar_odom.input_shape`` (JSON array, required): shape of one sweep input (``[1, W, W]``
-  Cartesian or ``[1, A, B']`` polar; the sequence form's input is T of them along axis 0).
-- ``radar_odom.state_shape`` (JSON array, required for the stream form): shape of the stream
+  Cartesian or ``[1, A, B']`` polar; the sequence form's input is T of them along axis 0; the
+  sweep form's: ``[A, B]`` of the sweep geometry, free in the graph).
+- ``radar_odom.state_shape`` (JSON array, required for the stream and sweep forms): shape of the stream
   state (single mode: the half spectrum ``[1, 2, W, W//2 + 1]``; dual mode: the sweep input's).
 - ``radar_odom.polar_input`` (JSON object, required for polar models): ``{num_bins,
   bin_factor}``, how the polar sweep is reduced before the graph.
@@ -61,7 +66,10 @@ from .errors import InvalidModelError, ModelMismatchError
 from .profiles import GridProfile
 
 FORMAT = "radar-odom-onnx/1"
-FORMS = ("stream", "pair", "sequence")
+FORMS = ("stream", "pair", "sequence", "sweep")
+STATE_FORMS = ("stream", "sweep")  # the forms that take and return a stream state
+# the sweep form's inputs besides ``prev_state``, in graph order (docs/sweep-form.md)
+SWEEP_INPUTS = ("power", "azimuths_rad", "range_resolution_m", "range_offset_m")
 DEFAULT_OPSET = 18  # the ONNX opset exports write unless asked for another (CLI ``--opset``)
 # the lowest opset an export reaches: torch's dynamo exporter writes 18 and converts down with onnx's version
 # converter, which has no adapter for Pad below 18 (`radar-odom export cart-0.8 --opset 17` fails so)
@@ -82,12 +90,12 @@ class MetadataKey:
 SCHEMA: tuple[MetadataKey, ...] = (
     MetadataKey("radar_odom.format", "text", "always", f"the file format, {FORMAT!r}"),
     MetadataKey("radar_odom.profile", "json-object", "always", "the GridProfile"),
-    MetadataKey("radar_odom.form", "text", "always", "'stream', 'pair' or 'sequence'"),
+    MetadataKey("radar_odom.form", "text", "always", "'stream', 'pair', 'sequence' or 'sweep'"),
     MetadataKey("radar_odom.sweep_geometry", "json-object", "always", "geometry of the training sweeps"),
     MetadataKey("radar_odom.inputs", "json-array", "always", "input tensor names, in graph order"),
     MetadataKey("radar_odom.outputs", "json-array", "always", "output tensor names, in graph order"),
     MetadataKey("radar_odom.input_shape", "json-array", "always", "shape of one sweep input"),
-    MetadataKey("radar_odom.state_shape", "json-array", "stream", "shape of the stream state"),
+    MetadataKey("radar_odom.state_shape", "json-array", "stream", "shape of the stream state (stream, sweep)"),
     MetadataKey("radar_odom.polar_input", "json-object", "polar", "{num_bins, bin_factor} of a polar input"),
     MetadataKey("radar_odom.profile_sha256", "sha256", "optional", "SHA-256 of the profile text"),
     MetadataKey("radar_odom.search", "json-object", "optional",
@@ -115,8 +123,12 @@ def profile_digest(profile_text: str) -> str:
     return hashlib.sha256(profile_text.encode("utf-8")).hexdigest()
 
 
-def expected_input_shape(profile: GridProfile, geometry: dict, polar_input: dict | None) -> tuple[int, ...]:
-    """The sweep input's shape that follows from the profile: ``(1, W, W)``, or ``(1, A, B')``."""
+def expected_input_shape(profile: GridProfile, geometry: dict, polar_input: dict | None,
+                         form: str = "stream") -> tuple[int, ...]:
+    """The sweep input's shape that follows from the profile: ``(1, W, W)``, or ``(1, A, B')``;
+    the sweep form's raw power ``(A, B)`` of the sweep geometry."""
+    if form == "sweep":
+        return (int(geometry["num_azimuths"]), int(geometry["num_bins"]))
     if profile.input_kind == "polar":
         return (1, int(geometry["num_azimuths"]), int(polar_input["num_bins"]))
     return (1, profile.width_px, profile.width_px)
@@ -330,13 +342,17 @@ class ModelInfo:
             v.check_int(geometry, k, "radar_odom.sweep_geometry", low=2)
         v.check_float(geometry, "range_resolution_m", "radar_odom.sweep_geometry", low=0.0, open_low=True)
         v.check_float(geometry, "range_offset_m", "radar_odom.sweep_geometry")
-        inputs = v.names("radar_odom.inputs", 1 if form == "sequence" else 2)
+        inputs = v.names("radar_odom.inputs", {"sequence": 1, "sweep": len(SWEEP_INPUTS) + 1}.get(form, 2))
         outputs = v.names("radar_odom.outputs", None)
-        for need in ("pose", "covariance") + (("state",) if form == "stream" else ()):
+        if form == "sweep" and (profile.input_kind != "cartesian" or inputs[:-1] != SWEEP_INPUTS):
+            raise InvalidModelError(
+                f"{source}: a sweep-form model draws a Cartesian image from inputs {list(SWEEP_INPUTS)} + prev_state; "
+                f"this one has {profile.input_kind} input and inputs {list(inputs)} — re-export it")
+        for need in ("pose", "covariance") + (("state",) if form in STATE_FORMS else ()):
             if need not in outputs:
                 raise InvalidModelError(f"{source}: metadata 'radar_odom.outputs' {outputs} lacks {need!r}")
         input_shape = v.shape("radar_odom.input_shape")
-        state = v.shape("radar_odom.state_shape", required=form == "stream")
+        state = v.shape("radar_odom.state_shape", required=form in STATE_FORMS)
         polar = v.json("radar_odom.polar_input", dict, required=profile.input_kind == "polar")
         if polar is not None:
             v.check_int(polar, "num_bins", "radar_odom.polar_input", low=1)
@@ -347,7 +363,7 @@ class ModelInfo:
                     f"{polar['bin_factor']} bins, more than the sweep geometry's {geometry['num_bins']}"
                 )
         # the sweep input's shape follows from the profile: a hand-edited grid is caught here
-        want = expected_input_shape(profile, geometry, polar)
+        want = expected_input_shape(profile, geometry, polar, form)
         if input_shape != want:
             raise InvalidModelError(
                 f"{source}: metadata 'radar_odom.input_shape' {list(input_shape)} does not match the "
@@ -381,7 +397,9 @@ class ModelInfo:
 
     @property
     def sweep_input(self) -> str:
-        """Name of the current-sweep input (``cart`` or ``polar``)."""
+        """Name of the current-sweep input (``cart`` or ``polar``; ``power`` in the sweep form)."""
+        if self.form == "sweep":
+            return "power"
         return "polar" if self.profile.input_kind == "polar" else "cart"
 
 
@@ -394,6 +412,8 @@ def io_names(profile: GridProfile, form: str) -> tuple[list[str], list[str]]:
         return [f"prev_{sweep}", sweep], ["pose", "covariance"]
     if form == "sequence":
         return [f"{sweep}s"], ["pose", "covariance"]
+    if form == "sweep":
+        return [*SWEEP_INPUTS, "prev_state"], ["pose", "covariance", "state"]
     raise ValueError(f"form must be one of {FORMS}, got {form!r}")
 
 
@@ -446,10 +466,12 @@ def build_metadata(*, profile: GridProfile, form: str, sweep_geometry: dict, inp
 
 
 def check_state_shape(info: ModelInfo) -> None:
-    """The stream state's shape must be the one the profile implies (`expected_state_shape`)."""
-    if info.form != "stream":
+    """The stream state's shape must be the one the profile implies (`expected_state_shape`; the sweep
+    form's is its inner stream graph's, of the Cartesian image)."""
+    if info.form not in STATE_FORMS:
         return
-    want = expected_state_shape(info.profile, info.input_shape)
+    image = info.input_shape if info.form == "stream" else expected_input_shape(info.profile, info.sweep_geometry, None)
+    want = expected_state_shape(info.profile, image)
     if info.state_shape != want:
         raise InvalidModelError(
             f"{info.source}: metadata 'radar_odom.state_shape' {list(info.state_shape)} does not match the "
@@ -470,10 +492,11 @@ def check_signature(info: ModelInfo, inputs, outputs, source: str = "model") -> 
     names_in = tuple(name for name, _, _ in inputs)
     if names_in != info.inputs:
         raise InvalidModelError(f"{source}: graph inputs {names_in} differ from metadata {info.inputs}")
-    if not {"pose", "covariance"} <= set(outs) or (info.form == "stream" and "state" not in outs):
+    stateful = info.form in STATE_FORMS
+    if not {"pose", "covariance"} <= set(outs) or (stateful and "state" not in outs):
         raise InvalidModelError(
             f"{source}: graph outputs {tuple(outs)} lack "
-            f"{'pose/covariance/state' if info.form == 'stream' else 'pose/covariance'}"
+            f"{'pose/covariance/state' if stateful else 'pose/covariance'}"
         )
     expect = {info.inputs[0]: info.input_shape}
     if info.form == "sequence":
@@ -483,11 +506,15 @@ def check_signature(info: ModelInfo, inputs, outputs, source: str = "model") -> 
                 f"{source}: graph input {info.inputs[0]!r} has a fixed sweep count {shape[0]}; a sequence-form "
                 "model takes any number of sweeps along axis 0 — re-export it with `radar-odom export --form sequence`"
             )
+    elif info.form == "sweep":  # power [A, B] (free in the graph), azimuths [A], two scalars [1], the state
+        a = info.input_shape[0]
+        expect.update({"azimuths_rad": (a,), "range_resolution_m": (1,), "range_offset_m": (1,),
+                       "prev_state": info.state_shape})
     else:
         expect[info.inputs[1]] = info.state_shape if info.form == "stream" else info.input_shape
     for name, want in expect.items():
         _check_shape(source, "input", name, *ins[name], want)
-    if info.form == "stream":
+    if stateful:
         _check_shape(source, "output", "state", *outs["state"], info.state_shape)
     _check_shape(source, "output", "pose", *outs["pose"], None, size=3)
     _check_shape(source, "output", "covariance", *outs["covariance"], None, size=9)

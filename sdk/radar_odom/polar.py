@@ -55,6 +55,21 @@ def seam_extended_azimuths(azimuths_rad: np.ndarray) -> np.ndarray:
     return np.concatenate(([az[-1] - TWO_PI], az, [az[0] + TWO_PI]))
 
 
+def pixel_range_bearing(resolution_m: float, width_px: int) -> tuple[np.ndarray, np.ndarray]:
+    """(range m, bearing rad in [0, 2π)) of each Cartesian pixel centre, float64 [W, W] each.
+
+    Row 0 is furthest ahead (+x), the column grows towards +y; bearing 0 is +x, growing towards +y
+    (the azimuth encoder's convention). Float64: the maps built from it are computed once.
+    """
+    h = half_extent_m(resolution_m, width_px)
+    coords = np.linspace(-h, h, width_px)
+    y_m, x_m = np.meshgrid(coords, -coords)  # row 0 = +x (ahead), column grows to +y
+    rho_m = np.hypot(x_m, y_m)
+    phi_rad = np.arctan2(y_m, x_m)
+    phi_rad[phi_rad < 0] += TWO_PI
+    return rho_m, phi_rad
+
+
 def cartesian_sample_maps(
     azimuths_rad: np.ndarray,
     num_bins: int,
@@ -79,12 +94,7 @@ def cartesian_sample_maps(
         azimuth list by piecewise-linear interpolation, which for uniform full-circle azimuths
         equals the reference ``v = (φ - az[0]) / (az[1] - az[0]) + 1``.
     """
-    h = half_extent_m(resolution_m, width_px)
-    coords = np.linspace(-h, h, width_px)  # float64: maps are computed once, so be exact
-    y_m, x_m = np.meshgrid(coords, -coords)  # row 0 = +x (ahead), column grows to +y
-    rho_m = np.hypot(x_m, y_m)
-    phi_rad = np.arctan2(y_m, x_m)
-    phi_rad[phi_rad < 0] += TWO_PI  # [0, 2π): the convention of the azimuth encoder
+    rho_m, phi_rad = pixel_range_bearing(resolution_m, width_px)
     u = (rho_m - range_offset_m - 0.5 * range_resolution_m) / range_resolution_m
     np.clip(u, 0.0, float(num_bins), out=u)
     ext = seam_extended_azimuths(azimuths_rad)
@@ -296,7 +306,7 @@ def polar_to_cartesian(scan, resolution_m: float, width_px: int, near_range_m: f
             sensor's frame at that instant, instead of the sensor's own.
     """
     width_px = check_grid(resolution_m, width_px)
-    az = _sampling_azimuths(scan)
+    az = sampling_azimuths(scan)
     maps = None
     if twist is not None or frame_pose is not None:
         maps = moving_sample_maps(az, azimuth_times_s(scan), twist, frame_pose, scan.num_bins,
@@ -310,7 +320,7 @@ def polar_to_cartesian(scan, resolution_m: float, width_px: int, near_range_m: f
 def filled_power(scan) -> np.ndarray:
     """float32[A, B]: a `RadarScan`'s power with its short runs of dropped rows filled
     (`fill_dropped_rows`), as every graph input draws it."""
-    return fill_dropped_rows(scan.power, _sampling_azimuths(scan), scan.valid)
+    return fill_dropped_rows(scan.power, sampling_azimuths(scan), scan.valid)
 
 
 # Dropped azimuth rows in runs of at most this many are filled from their neighbours. The beam
@@ -443,7 +453,7 @@ def _check_azimuths(az: np.ndarray, where: str) -> None:
         raise ScanFormatError(f"{where}azimuths_rad must lie in [0, 2π), got [{az[0]:.4g}, {az[-1]:.4g}]")
 
 
-def _sampling_azimuths(scan) -> np.ndarray:
+def sampling_azimuths(scan) -> np.ndarray:
     """float64[A] azimuths to sample with: the scan's, with those of invalid rows made consistent.
 
     Invalid rows hold zero power but may carry junk angles (a dropped encoder reading); the map

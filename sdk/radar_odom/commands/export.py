@@ -1,4 +1,4 @@
-"""``radar-odom export model.pt [-o model.onnx] [--form stream|pair|sequence] [--search exhaustive|fast|decoupled]
+"""``radar-odom export model.pt [-o model.onnx] [--form stream|pair|sequence|sweep] [--search exhaustive|fast|decoupled]
 [--opset N] [--exporter auto|dynamo|torchscript] [--quantize int8]``.
 
 A shipped name (``radar-odom export cart-0.4``) reproduces the shipped model: its search, search
@@ -31,11 +31,13 @@ def register(subparsers) -> None:
                    help="ONNX file to write (default: the checkpoint's name, or NAME for a shipped one, with the "
                         "search and form appended where they are not its default, e.g. cart-0.4-decoupled.onnx)")
     p.add_argument("--force", action="store_true", help="overwrite the output file if it exists")
-    p.add_argument("--form", choices=("stream", "pair", "sequence"), default=None,
+    p.add_argument("--form", choices=("stream", "pair", "sequence", "sweep"), default=None,
                    help="stream: (sweep, previous state) -> (pose, covariance, state), masks each sweep once; "
                         "pair: (previous sweep, sweep) -> (pose, covariance), for evaluation; sequence: T "
                         "consecutive sweeps -> T-1 poses and covariances in one call, for offline batches "
-                        "(radar_odom.match_sequence; fast search). Default: stream")
+                        "(radar_odom.match_sequence; fast search); sweep: the stream form taking the raw polar "
+                        "sweep (power, azimuths, range resolution and offset) and drawing the Cartesian image "
+                        "itself, for runtimes outside Python (docs/sweep-form.md). Default: stream")
     p.add_argument("--search", choices=("exhaustive", "fast", "decoupled"), default=None,
                    help="exhaustive: score every yaw candidate (the paper's search); fast: coarse-to-fine yaw "
                         "search, several times faster on a CPU, stream and sequence forms; decoupled: yaw from "
@@ -90,6 +92,9 @@ def run(args) -> int:
         # reproduce the shipped model: its search with its settings, its form
         search, form, settings = shipped["search"], shipped["form"], shipped["settings"]
         tag = ""
+    elif shipped is not None and args.search in (None, shipped["search"]) and args.form == "sweep":
+        # the shipped model's stream graph, with the drawing in front
+        search, settings, tag = shipped["search"], shipped["settings"], "-sweep"
     else:
         default = default_search(ckpt, form)
         search = args.search or default
@@ -111,6 +116,11 @@ def run(args) -> int:
                   exporter=args.exporter)
     if settings is not None:
         common["search_settings"] = settings
+    if args.quantize and form == "sweep":
+        from ..errors import ConfigError
+
+        raise ConfigError("--quantize writes the stream form only; the sweep form of an int8 graph is not made "
+                          "(leave out --quantize, or --form)")
     if args.quantize:
         try:
             from radar_odom_export.quantize import export_quantized
@@ -121,6 +131,8 @@ def run(args) -> int:
         print(fp32.summary().replace(f"wrote {fp32.path}", "exported (float32, temporary)"))
         print(quant.summary())
         return 0
+    if form == "sweep":  # the stream graph with the polar→Cartesian drawing in front (docs/sweep-form.md)
+        from radar_odom_export.sweep_form import export_sweep_checkpoint as export_checkpoint
     report = export_checkpoint(ckpt, out, **common)
     print(report.summary())
     return 0

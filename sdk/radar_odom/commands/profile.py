@@ -42,6 +42,9 @@ def register(subparsers) -> None:
     p.add_argument(
         "--threads", type=threads_arg, default=None, help="onnxruntime threads (default: physical cores)%(default).0s"
     )
+    p.add_argument("--runtime", choices=("onnxruntime", "openvino"), default="onnxruntime",
+                   help="runtime the stream steps run on (openvino: its own runtime, radar_odom.runtimes; the "
+                        "operator table and the file throughput stay onnxruntime's and are left out)")
     p.add_argument("--steps", type=int, default=200, help="timed stream steps per model")
     p.add_argument("--warmup", type=int, default=20, help="untimed steps first")
     p.add_argument(
@@ -117,5 +120,6 @@ def run(args) -> int:
         command="radar-odom " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
         progress_bar=not args.no_progress,
         keep_traces=args.keep_traces,
+        runtime=args.runtime,
     )
     return 0

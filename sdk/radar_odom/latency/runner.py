@@ -38,10 +38,13 @@ def run_profile(
     echo=print,
     progress_bar=True,
     keep_traces: bool = False,
+    runtime: str = "onnxruntime",
 ) -> dict:
     """Profile every model (see `resolve_models`), write ``profile.json`` and ``profile.md`` in
     ``out_dir`` (and onnxruntime's traces only with ``keep_traces``), and return the report
-    dictionary. Every phase says when it starts and at least every `PROGRESS_EVERY_S` while it runs."""
+    dictionary. Every phase says when it starts and at least every `PROGRESS_EVERY_S` while it runs.
+    ``runtime``: onnxruntime or openvino (`radar_odom.runtimes`: the stream steps and the numpy
+    reference; operators and file throughput are onnxruntime's only)."""
     from .._progress import heartbeat
     from ..errors import ConfigError
     from ..onnx_model import physical_cores
@@ -80,9 +83,10 @@ def run_profile(
             progress_bar=progress_bar,
             echo=echo,
             every_s=PROGRESS_EVERY_S,
+            runtime=runtime,
         )
         written += r.traces
-        if file_sweeps > 0:
+        if file_sweeps > 0 and runtime == "onnxruntime":
             echo(f"{label}: {file_sweeps} sweeps from PNG files, pipelined and serial ...")
             with heartbeat(echo, f"{label}: sweep files", PROGRESS_EVERY_S):
                 r.files = file_throughput(path, pngs, sweeps=file_sweeps, threads=threads)
@@ -95,6 +99,7 @@ def run_profile(
             "steps": steps,
             "warmup": warmup,
             "threads": threads,
+            "runtime": runtime,
             "reference_steps": reference_steps,
             "operator_steps": operator_steps,
             "distinct_sweeps": distinct_sweeps,
@@ -210,6 +215,7 @@ def markdown_report(report: dict) -> str:
         lines += [f"Command: `{report['command']}`", ""]
     lines += [
         f"Machine: {format_machine(report['machine'])}.",
+        f"Runtime: {st.get('runtime', 'onnxruntime')}. "
         f"Sweeps: {st['sweeps']} ({st['distinct_sweeps']} distinct, cycled). Times in ms as "
         f"median / p90 / p99 over {st['steps']} steps after {st['warmup']} warm-up steps; "
         f"numpy-FFT references over {st['reference_steps']} steps. The references search the masked "

@@ -1,13 +1,13 @@
 """Time every stage of one model's stream steps, its operators and the numpy reference."""
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from ..model_file import STATE_FORMS
 from .reference import FFTReference, make_reference, state_to_image, state_to_spectrum
 from .stats import _summarise_ops, latency_summary, masker_time, operator_runs, peak_rss_mb
 from .sweeps import decode_png, parse_sweep
@@ -40,26 +40,28 @@ class ModelProfile:
 def profile_model(model_path, pngs: list[bytes], *, steps: int = 200, warmup: int = 20, threads: int = 2,
                   reference_steps: int = 30, operator_steps: int = 50, trace_dir=None, name=None,
                   untrained: bool = False, progress_bar: bool = True, echo=None,
-                  every_s: float = 8.0) -> ModelProfile:
+                  every_s: float = 8.0, runtime: str = "onnxruntime") -> ModelProfile:
     """Time every stage of ``steps`` stream steps of one model (see the module docstring); ``echo``
     (e.g. print) says when each later phase starts and, every ``every_s`` seconds, that it still runs.
-    onnxruntime's trace is kept in ``trace_dir`` only when one is given (tens of MB)."""
+    onnxruntime's trace is kept in ``trace_dir`` only when one is given (tens of MB).
+    ``runtime``: ``"onnxruntime"`` or ``"openvino"`` (`radar_odom.runtimes`; its operators are not traced).
+    A sweep-form model's *polar→Cartesian* stage is only its feeds' preparation: its graph draws the image."""
     say = echo or (lambda text: None)
     from .._progress import heartbeat, progress
     from ..odometry.odometer import RadarOdometer
-    from ..onnx_model import OnnxModel
+    from ..runtimes import load_model
 
-    model = OnnxModel(model_path, threads=threads)
+    model = load_model(model_path, runtime, threads)
     info = model.info
     odo = RadarOdometer(model)
-    search = json.loads(model.session.get_modelmeta().custom_metadata_map.get("radar_odom.search", "null"))
+    search = info.search
     result = ModelProfile(name or Path(model_path).stem, str(model_path), dict(info.profile.__dict__),
                           search, untrained)
-    streaming = info.form == "stream" and info.profile.mode == "single"
+    streaming = info.form in STATE_FORMS and info.profile.mode == "single"
     if not streaming:
         result.notes.append(f"{info.form} form / {info.profile.mode} mode: no spectrum state, "
                             "so no numpy-FFT reference")
-    sweep_name, state_name = info.inputs[0], info.inputs[1]
+    sweep_name = info.inputs[0]
     state = np.zeros(info.state_shape, dtype=np.float32) if streaming else None
     prev_x = None
     times = {s: [] for s in STAGES}
@@ -74,7 +76,7 @@ def profile_model(model_path, pngs: list[bytes], *, steps: int = 200, warmup: in
         x = odo._sweep_input(scan)  # the odometer's own conversion (Cartesian or reduced polar)
         t3 = time.perf_counter()
         if streaming:
-            feeds = {sweep_name: x, state_name: state}
+            feeds = _stream_feeds(info, x, state)
         else:  # pair form, or a dual-mode stream whose state is the previous sweep
             feeds = {info.inputs[0]: x if prev_x is None else prev_x, info.inputs[1]: x}
             if info.form == "stream":
@@ -96,7 +98,9 @@ def profile_model(model_path, pngs: list[bytes], *, steps: int = 200, warmup: in
         say(f"{result.name}: the same search in numpy (pocketfft), {reference_steps} steps ...")
         with heartbeat(say, f"{result.name}: numpy reference", every_s):
             result.reference = _reference(model, info, pngs, odo, reference_steps, search)
-    if operator_steps > 0:
+    if operator_steps > 0 and runtime != "onnxruntime":
+        result.notes.append(f"{runtime}: operators not traced (onnxruntime's profiler only)")
+    elif operator_steps > 0:
         say(f"{result.name}: onnxruntime's profiler, {operator_steps} steps ...")
         with heartbeat(say, f"{result.name}: onnxruntime's profiler", every_s):
             result.operators, result.masker, result.traces = _operators(
@@ -104,12 +108,16 @@ def profile_model(model_path, pngs: list[bytes], *, steps: int = 200, warmup: in
     return result
 
 
+def _stream_feeds(info, x, state) -> dict:
+    """A stream step's feeds: the sweep input (an array, or a sweep-form model's dict of arrays) and the state."""
+    return {**(x if isinstance(x, dict) else {info.inputs[0]: x}), info.inputs[-1]: state}
+
+
 def _stream_states(model, info, pngs, odo, count):
     """(previous state, current state, pose) for ``count`` consecutive steps of a fresh stream."""
     state = np.zeros(info.state_shape, dtype=np.float32)
     for i in range(count + 1):
-        out = model.run({info.inputs[0]: odo._sweep_input(parse_sweep(decode_png(pngs[i % len(pngs)]))),
-                         info.inputs[1]: state})
+        out = model.run(_stream_feeds(info, odo._sweep_input(parse_sweep(decode_png(pngs[i % len(pngs)]))), state))
         if i:
             yield state, out["state"], out["pose"][0]
         state = out["state"]
@@ -155,7 +163,7 @@ def _operators(model_path, threads, pngs, odo, info, steps, trace_dir, name) -> 
     prefix = Path(trace_dir) / ("ort-trace-" + re.sub(r"[^A-Za-z0-9._-]+", "-", name).strip("-"))  # a plain name
     traced = OnnxModel(model_path, threads=threads, enable_profiling=True, profile_prefix=prefix)
     try:
-        if info.form == "stream" and info.profile.mode == "single":
+        if info.form in STATE_FORMS and info.profile.mode == "single":
             for _ in _stream_states(traced, info, pngs, odo, steps):
                 pass
         else:

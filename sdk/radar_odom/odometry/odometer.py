@@ -125,11 +125,18 @@ SCAN_HINT = ("wrap the sweep first: RadarScan.from_arrays(timestamps_us, azimuth
 DESKEW_STEPS = 4  # estimates averaged into the de-skew velocity (1 s at 4 Hz)
 
 
+def _is_loaded_model(model) -> bool:
+    """True for a model object with `OnnxModel`'s interface (``info``, ``path``, ``run``) rather than a path."""
+    return all(hasattr(model, a) for a in ("info", "path", "run")) and callable(model.run)
+
+
 class RadarOdometer:
     """Odometry with an exported radar-odom ONNX model, configured from its metadata.
 
     Args:
-        model: path of the ``.onnx`` file (e.g. ``radar_odom.pretrained("cart-0.4")``).
+        model: path of the ``.onnx`` file (e.g. ``radar_odom.pretrained("cart-0.4")``), any form but the
+            sequence's (a sweep-form file draws the Cartesian image in its graph: no de-skew, gap crossing or
+            yaw centring, which draw it moved), or a loaded model (`OnnxModel`, `radar_odom.runtimes.OpenVinoModel`).
         threads: onnxruntime intra-op threads; default: the number of physical cores.
         providers: onnxruntime execution providers; default CPU.
         max_gap_s: None (default): every gap is crossed (see "Gaps" in the module docstring);
@@ -181,7 +188,9 @@ class RadarOdometer:
             raise TypeError(f"motion_prior must be True, False or a MotionPriorConfig, got {motion_prior!r}")
         self._use_prediction = use
         self._prior = MotionPrior(config)
-        self._model = model if isinstance(model, OnnxModel) else OnnxModel(model, threads, providers)
+        # an OnnxModel, or a model on another runtime with its interface (`radar_odom.runtimes.OpenVinoModel`)
+        self._model = model if isinstance(model, OnnxModel) or _is_loaded_model(model) else OnnxModel(
+            model, threads, providers)
         self.info = self._model.info
         self._graph = GraphStep(self._model)
         if self.info.form == "sequence":
@@ -194,8 +203,9 @@ class RadarOdometer:
         self._prior_cov = window_covariance(self.profile)
         self._lock = threading.RLock()
         self.sweep_region_m = model_region_m(self.info)
-        # a polar model's graph reads the sweep as recorded: neither de-skew nor a moved frame
-        self._movable = self.profile.input_kind != "polar"
+        # a polar model's graph reads the sweep as recorded, a sweep-form graph draws it as recorded: neither
+        # de-skew nor a moved frame (nor the gap crossing and yaw centring, which draw the sweep moved)
+        self._movable = self.profile.input_kind != "polar" and self.info.form != "sweep"
         self.deskew = bool(deskew) and self._movable
         if centre_yaw is None:
             centre_yaw = CENTRE_YAW_DEFAULT

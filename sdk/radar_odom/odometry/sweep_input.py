@@ -4,7 +4,8 @@ sweep of a polar-input model), optionally de-skewed and drawn in a moved frame.
 `graph_input` is a pure function of the sweep, the model's `ModelInfo` and, for a Cartesian
 model, an optional `SweepMotion`: the sensor's velocity over the sweep (de-skew to the first
 azimuth's instant) and a frame to draw the image in (the odometer's gap crossing). Only
-Cartesian models can take either: a polar model's graph reads the sweep as it was recorded.
+Cartesian models can take either: a polar model's graph reads the sweep as it was recorded. A sweep-form
+model (docs/sweep-form.md) draws the image inside its graph: its input is the sweep's arrays (`sweep_feeds`).
 """
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..polar import filled_power, polar_to_cartesian
+from ..polar import filled_power, polar_to_cartesian, sampling_azimuths
 from ..scan import RadarScan
 
 # Below this displacement over one sweep (m, and the yaw's arc at the grid's edge) de-skew moves no
@@ -83,11 +84,29 @@ def twists_differ(a, b, scan: RadarScan, profile) -> bool:
     return sweep_shift_m(za - zb, scan, profile) >= REDRAW_FRACTION_PX * profile.resolution_m
 
 
-def graph_input(scan: RadarScan, info, motion: SweepMotion | None = None) -> np.ndarray:
+def sweep_feeds(scan: RadarScan) -> dict[str, np.ndarray]:
+    """The sweep-form graph's inputs for ``scan`` but the state: ``power`` float32[A, B] in [0, 1] (short runs
+    of dropped rows filled, `radar_odom.polar.filled_power`), ``azimuths_rad`` float32[A] (those of dropped rows
+    made increasing, `radar_odom.polar.sampling_azimuths`), ``range_resolution_m`` and ``range_offset_m``
+    float32[1]: what `polar_to_cartesian` draws from, so the graph draws the same image."""
+    return {
+        "power": np.ascontiguousarray(filled_power(scan), dtype=np.float32),
+        "azimuths_rad": np.ascontiguousarray(sampling_azimuths(scan), dtype=np.float32),
+        "range_resolution_m": np.array([scan.range_resolution_m], dtype=np.float32),
+        "range_offset_m": np.array([scan.range_offset_m], dtype=np.float32),
+    }
+
+
+def graph_input(scan: RadarScan, info, motion: SweepMotion | None = None):
     """float32[1, W, W] Cartesian image (or [1, A, B'] reduced polar sweep) of ``scan`` for
     the graph of the model described by ``info`` (a `ModelInfo`); ``motion`` (Cartesian models
-    only) de-skews it and/or draws it in a moved frame (`SweepMotion`)."""
+    only) de-skews it and/or draws it in a moved frame (`SweepMotion`). A sweep-form model's input is
+    the dict of `sweep_feeds` (its graph draws the image, as recorded: no ``motion``)."""
     p = info.profile
+    if info.form == "sweep":
+        if motion is not None and not motion.is_identity:
+            raise ValueError("a sweep-form model draws the sweep as recorded: it cannot be de-skewed or moved")
+        return sweep_feeds(scan)
     if p.input_kind == "polar":
         if motion is not None and not motion.is_identity:
             raise ValueError("a polar-input model reads the sweep as recorded: it cannot be de-skewed or moved")
