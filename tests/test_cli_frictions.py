@@ -176,6 +176,25 @@ def test_export_refuses_an_opset_it_cannot_reach_before_tracing(opset, tmp_path,
 
 @pytest.mark.torch
 @needs_torch
+def test_export_fast_search_on_a_yaw_step_that_does_not_divide_the_turn_is_one_line(tmp_path, capsys):
+    """A user's profile with a yaw step of 0.7° (514.3 steps a turn) and --search fast: one line that
+    says why and what to do, before any tracing (was: a raw ValueError from the polar rotation)."""
+    import math
+
+    from radar_odom_export.checkpoint import read_checkpoint_dict, resolve_checkpoint, write_checkpoint_dict
+
+    ckpt = read_checkpoint_dict(resolve_checkpoint("cart-0.8"))
+    odd = {**ckpt, "profile": {**ckpt["profile"], "rotation_step_rad": math.radians(0.7)}}
+    path = write_checkpoint_dict(tmp_path / "odd.pt", odd)
+    out = tmp_path / "odd.onnx"
+    assert main(["export", str(path), "--search", "fast", "-o", str(out)]) == 1
+    line = one_error_line(capsys, "export")
+    assert "0.7°" in line and "does not divide 360°" in line and "--search exhaustive" in line
+    assert not out.exists()
+
+
+@pytest.mark.torch
+@needs_torch
 def test_the_opset_check_names_the_file_asked_for(tmp_path):
     """The check after writing names the output and the opset it got (was: the temporary file and `{got}`)."""
     import onnx

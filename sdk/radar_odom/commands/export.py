@@ -111,6 +111,7 @@ def run(args) -> int:
         raise OutputError(f"{out} exists; pass --force to overwrite it, or -o to write elsewhere")
     check_output_path(out)
     check_search_form(search, form)  # before a calibration of minutes
+    check_fast_rotation(ckpt, search)
     calibrate_first(ckpt, search, args)
     common = dict(form=form, opset=args.opset, verify=not args.no_verify, search=search,
                   exporter=args.exporter)
@@ -152,6 +153,26 @@ def default_search(checkpoint, form: str | None) -> str:
     if form == "pair" or profile.get("mode", "single") == "dual" or not divides_turn(profile["rotation_step_rad"]):
         return "exhaustive"
     return "fast"
+
+
+def check_fast_rotation(checkpoint, search: str) -> None:
+    """`ConfigError` for ``--search fast`` on a profile whose yaw step does not divide the full turn
+    (the fast search's polar rotation needs it; `correlation.divides_turn`): said in one line before
+    any calibration or tracing, with what to do."""
+    import math
+
+    from radar_odom_export.checkpoint import read_checkpoint_dict
+    from radar_odom_export.correlation import divides_turn
+
+    from ..errors import ConfigError
+
+    if search != "fast":
+        return
+    step = read_checkpoint_dict(checkpoint)["profile"]["rotation_step_rad"]
+    if not divides_turn(step):
+        raise ConfigError(f"--search fast: the profile's yaw step {math.degrees(step):.4g}° does not divide 360° "
+                          f"({360 / math.degrees(step):.3f} steps per turn), which the fast search's polar rotation "
+                          "needs; use --search exhaustive, or a rotation_step_rad of 2π/N in the profile")
 
 
 def calibrate_first(checkpoint, search: str, args) -> None:
