@@ -137,11 +137,12 @@ def test_export_names_its_output_by_search_and_form(recorded_exports, tmp_path, 
     monkeypatch.chdir(tmp_path)
     ckpt = tmp_path / "m.pt"
     ckpt.write_bytes(b"")
-    for argv in (["cart-0.4"], ["cart-0.4", "--search", "decoupled"], ["cart-0.4", "--search", "exhaustive"],
+    for argv in (["cart-0.4"], ["cart-0.4", "--search", "fast", "--form", "sequence"],
+                 ["cart-0.4", "--search", "exhaustive"],
                  [str(ckpt)], [str(ckpt), "--search", "fast"], [str(ckpt), "--form", "sequence"]):
         assert main(["export", *argv]) == 0
     names = [out.replace(str(tmp_path) + "/", "") for out, _ in recorded_exports]
-    assert names == ["cart-0.4.onnx", "cart-0.4-decoupled.onnx", "cart-0.4-exhaustive.onnx", "m.onnx",
+    assert names == ["cart-0.4.onnx", "cart-0.4-fast-sequence.onnx", "cart-0.4-exhaustive.onnx", "m.onnx",
                      "m-fast.onnx", "m-fast-sequence.onnx"]
 
 
