@@ -2,7 +2,7 @@
 
     git show 84a559c:sdk/radar_odom/models/cart-0.4.onnx > prev-cart-0.4.onnx
     python benchmarks/compare_graphs.py prev-cart-0.4.onnx sdk/radar_odom/models/cart-0.4.onnx
-    python benchmarks/compare_graphs.py cart-0.4@spin,all cart-0.4     # the previous session settings vs today's
+    python benchmarks/compare_graphs.py cart-0.4@spin cart-0.4     # the previous session settings vs today's
 
 This machine's load changes by tens of percent from one minute to the next, so timings taken
 in separate runs do not compare; here every step runs each model once, in alternating order,
@@ -19,13 +19,13 @@ import time
 
 SESSION_OPTIONS = {  # a model's ``@option`` suffix: onnxruntime settings other than the SDK's
     "spin": "intra-op workers spin between operators (onnxruntime's default; the SDK's before issue 43)",
-    "all": "graph optimisation level ORT_ENABLE_ALL (the SDK's before issue 43)",
+    "basic": "graph optimisation level ORT_ENABLE_BASIC (the SDK's: ORT_ENABLE_ALL)",
 }
 
 
 def session(spec: str, threads: int):
     """An `OnnxModel` of ``spec``: a path or shipped name, optionally with ``@`` and comma-separated
-    `SESSION_OPTIONS` (``cart-0.4@spin,all``: the shipped file as the previous release ran it)."""
+    `SESSION_OPTIONS` (``cart-0.4@spin``: the shipped file as the previous release ran it)."""
     from radar_odom.model_zoo import pretrained, pretrained_names
     from radar_odom.onnx_model import OnnxModel
 
@@ -34,7 +34,7 @@ def session(spec: str, threads: int):
     unknown = opts - set(SESSION_OPTIONS)
     if unknown:
         sys.exit(f"{spec}: unknown session options {sorted(unknown)}; known: {sorted(SESSION_OPTIONS)}")
-    level = "all" if "all" in opts else None
+    level = "basic" if "basic" in opts else None
     return OnnxModel(pretrained(name) if name in pretrained_names() else name, threads=threads,
                      spinning="spin" in opts, optimization=level)
 

@@ -10,13 +10,13 @@ once, in alternating order, so the machine's load falls on all of them alike:
 * ``serial``: ``prefetch=0``, everything on the calling thread: its per-sweep medians of *read*
   (decode + parse + polar→Cartesian) and *step* (the graph) give the **serial sum**;
 * ``pipelined``: the read-ahead worker thread (``prefetch=2``), as ``radar-odom run`` does;
-* the same two with the previous release's session settings (onnxruntime's workers spinning between
-  operators, graph optimisation level "all": `radar_odom.onnx_model.session_options`), and the
-  pipelined run with one intra-op thread.
+* the same two with onnxruntime's workers spinning between operators (its default, and the SDK's
+  before issue 43: `radar_odom.onnx_model.session_options`), and the pipelined run with one
+  intra-op thread.
 
 Prints, per configuration, the medians over rounds of wall time per sweep, read, step, and the ratio
 of wall per sweep to the serial sum of the same round (≤ 0.85: the two stages overlap); the
-previous settings' pipelined run is divided by their own serial sum.
+spinning pipelined run is divided by the spinning serial sum.
 """
 from __future__ import annotations
 
@@ -26,23 +26,22 @@ import sys
 import tempfile
 from pathlib import Path
 
-CONFIGS = {  # name: (intra-op threads, prefetch, spinning, graph optimisation level)
-    "serial": (2, 0, False, "basic"),
-    "pipelined": (2, 2, False, "basic"),
-    "serial, previous settings": (2, 0, True, "all"),
-    "pipelined, previous settings": (2, 2, True, "all"),
-    "pipelined, 1 thread": (1, 2, False, "basic"),
+CONFIGS = {  # name: (intra-op threads, prefetch, spinning)
+    "serial": (2, 0, False),
+    "pipelined": (2, 2, False),
+    "serial, spinning": (2, 0, True),
+    "pipelined, spinning": (2, 2, True),
+    "pipelined, 1 thread": (1, 2, False),
 }
 
 
-def run_once(model_path, paths, threads: int, prefetch: int, spinning: bool, optimization: str,
-             warmup: int = 3) -> dict:
+def run_once(model_path, paths, threads: int, prefetch: int, spinning: bool, warmup: int = 3) -> dict:
     """One run of ``paths`` through a fresh odometer: wall per sweep and the stages' medians (s)."""
     from radar_odom import RadarOdometer
     from radar_odom.odometry.pipeline import iter_estimates
     from radar_odom.onnx_model import OnnxModel
 
-    odo = RadarOdometer(OnnxModel(model_path, threads, spinning=spinning, optimization=optimization), max_gap_s=1e6)
+    odo = RadarOdometer(OnnxModel(model_path, threads, spinning=spinning), max_gap_s=1e6)
     with iter_estimates(paths[:warmup], odo, prefetch=0) as warm:
         for _ in warm:
             pass
@@ -75,7 +74,7 @@ def main(argv=None) -> int:
             for name in (args.configs if r % 2 == 0 else args.configs[::-1]):
                 round_[name] = run_once(model_path, paths, *CONFIGS[name])
             for name, res in round_.items():
-                serial = round_.get("serial, previous settings" if "previous" in name else "serial")
+                serial = round_.get("serial, spinning" if "spinning" in name else "serial")
                 res["ratio"] = res["wall"] / (serial["read"] + serial["step"]) if serial else float("nan")
                 results[name].append(res)
     print(f"{args.model}, {args.sweeps} sweeps a run, {args.rounds} rounds interleaved; "

@@ -294,8 +294,7 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=2, help="onnxruntime threads (default: %(default)s)")
     ap.add_argument("--keep", type=Path, default=None, help="keep the scoped graph at this path")
     ap.add_argument("--previous-session", action="store_true",
-                    help="the previous release's session settings (workers spinning, optimisation level all) "
-                         "instead of the SDK's")
+                    help="the previous release's session settings (workers spinning) instead of the SDK's")
     args = ap.parse_args(argv)
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -304,8 +303,7 @@ def main(argv=None) -> int:
         stages, cost = node_stages(path)
         peak = matmul_peak_gflops(args.threads)
         old = args.previous_session
-        timed = profile_nodes(path, args.steps, args.warmup, args.threads, spinning=old,
-                              optimization="all" if old else None)
+        timed = profile_nodes(path, args.steps, args.warmup, args.threads, spinning=old)
         peak = max(peak, matmul_peak_gflops(args.threads))  # before and after: the better of two
     how = "previous session settings" if args.previous_session else "the SDK's session settings"
     print(f"{args.checkpoint.name}, fast search {args.settings or '(profile default)'}, {args.steps} steps, "

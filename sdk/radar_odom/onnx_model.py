@@ -99,11 +99,10 @@ def session_options(threads: int | None = None, enable_profiling: bool = False, 
 
     ``threads`` intra-op workers (default: `physical_cores`; `check_threads`), one inter-op worker and sequential
     execution (the graph is a single chain, parallel branches would only contend for cores).
-    ``optimization``: onnxruntime's graph optimisation level, ``"basic"`` by default (constant
-    folding, redundant-node elimination, the elementwise fusions): the level "all" (NCHWc
-    convolution layouts and the extended fusions) made the cart-0.4 step slower on the 2-core machine
-    this was measured on (docs/latency.md, "Half the step"). ``enable_profiling`` writes
-    onnxruntime's per-node JSON trace.
+    ``optimization``: onnxruntime's graph optimisation level, ``"all"`` by default (its own default:
+    NCHWc convolution layouts and every fusion); ``"basic"`` measured from 0.7× to 1.13× its step
+    time on a shared 2-core machine, so the default stays (docs/latency.md, "Half the step").
+    ``enable_profiling`` writes onnxruntime's per-node JSON trace.
     ``spinning``: let the intra-op workers busy-wait between operators (onnxruntime's default). Off
     here: most of the step's ~850 operators are small, so a spinning worker holds a core it does not
     use, the core the read-ahead thread needs to decode the next sweep, or another process's
@@ -122,7 +121,7 @@ def session_options(threads: int | None = None, enable_profiling: bool = False, 
         "basic": ort.GraphOptimizationLevel.ORT_ENABLE_BASIC,
         "extended": ort.GraphOptimizationLevel.ORT_ENABLE_EXTENDED,
         "all": ort.GraphOptimizationLevel.ORT_ENABLE_ALL,
-    }[optimization or "basic"]
+    }[optimization or "all"]
     so.log_severity_level = 3  # warnings about unused initializers etc. are noise for users
     so.add_session_config_entry("session.intra_op.allow_spinning", "1" if spinning else "0")
     if enable_profiling:
@@ -149,7 +148,7 @@ class OnnxModel:
     """An onnxruntime session over a radar-odom ONNX file, with its `ModelInfo`.
 
     ``run(feeds)`` takes float32 arrays by input name and returns a dict of outputs by name.
-    ``spinning``, ``optimization``: `session_options`' (off; "basic" by default).
+    ``spinning``, ``optimization``: `session_options`' (off; "all" by default).
     """
 
     def __init__(self, path, threads: int | None = None, providers=None, enable_profiling=False,
