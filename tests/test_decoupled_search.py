@@ -195,10 +195,23 @@ def test_export_by_shipped_name_reproduces_the_shipped_search(monkeypatch, capsy
     monkeypatch.setattr(onnx_export, "export_checkpoint",
                         lambda ckpt, out, **kw: asked.append(kw) or SimpleNamespace(summary=lambda: "ok"))
     assert main(["export", "cart-0.4", "-o", "unused.onnx"]) == 0
-    assert main(["export", "cart-0.4", "-o", "unused.onnx", "--search", "decoupled"]) == 0
+    assert main(["export", "cart-0.4", "-o", "unused.onnx", "--search", "exhaustive"]) == 0
     assert asked[0]["search"] == got["search"] and asked[0]["form"] == got["form"]
     assert asked[0].get("search_settings") == got["settings"]
-    assert asked[1]["search"] == "decoupled" and "search_settings" not in asked[1]
+    assert asked[1]["search"] == "exhaustive" and "search_settings" not in asked[1]
+
+
+def test_the_decoupled_search_is_retired_from_the_cli(capsys):
+    """docs/latency.md: 0.58x the fast step and 27 % less accurate, so `radar-odom export` and
+    `radar-odom profile` no longer offer it (the library keeps `export_decoupled`)."""
+    from radar_odom.commands.cli import main
+
+    for argv in (["export", "cart-0.4", "-o", "unused.onnx", "--search", "decoupled"],
+                 ["profile", "--search", "decoupled"]):
+        with pytest.raises(SystemExit) as exc:
+            main(argv)
+        assert exc.value.code == 2
+        assert "invalid choice: 'decoupled'" in capsys.readouterr().err
 
 
 def test_training_through_the_decoupled_search_reduces_the_pose_loss():

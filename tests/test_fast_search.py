@@ -1,6 +1,7 @@
 """The fast stream step: factored DFT and windowed inverse against torch.fft, polar rotation
 against the rotation maths, equality with the exhaustive step when the band covers every yaw,
 pose recovery on a synthetic pair with the coarse-to-fine search, and the ONNX export."""
+import copy
 import math
 
 import numpy as np
@@ -316,7 +317,9 @@ def _rolled_reference(rot: PolarRotator, images, shifts):
     flat = F.pad(images, (1, 2, 1, 2)).reshape(images.shape[0], -1)
     polar = gather_lerp(flat, index.reshape(1, -1).expand(flat.shape[0], -1), fr.reshape(1, -1),
                         fc.reshape(1, -1), w + 3).reshape(-1, a, r)
-    _, (az, rad) = rot._tables(torch.float32)
+    full = copy.copy(rot)
+    full.crop = (0, w)  # every pixel sampled: the crop's zeros are checked, not assumed
+    _, (az, rad) = full._tables(torch.float32)
     index, fr, fc = bilinear_table(az, rad, a + 1, r)
     out = []
     for b in range(images.shape[0]):
@@ -477,3 +480,21 @@ def test_a_resampled_identity_exports_and_onnxruntime_matches_torch(tmp_path, se
     assert report.max_pose_diff is not None and report.max_pose_diff < 1e-3
     assert "GridSample" not in report.ops and not {"DFT", "STFT"} & set(report.ops)
     assert OnnxModel(path, threads=1).info.profile.rotation_identity == "resampled"
+
+
+def test_the_rotation_samples_only_the_square_around_its_disc():
+    """Pixels beyond the polar grid's reach read only its zero padding: the rotator samples the
+    square around that disc and pads the rest, with the same result as sampling every pixel."""
+    rot = PolarRotator(64, math.radians(2), 20.0, 6, oversample=1, radial_step_px=1.0, kernel="cubic")
+    lo, size = rot.crop
+    assert lo > 0 and size == 64 - 2 * lo  # 20 px radius in a 64 px image: a smaller square
+    images = torch.rand(2, 64, 64, generator=torch.Generator().manual_seed(5))
+    shifts = torch.tensor([[-3, 0, 2], [1, 5, -6]])
+    cropped = rot(images, shifts)
+    full = copy.copy(rot)
+    full.crop = (0, 64)
+    assert torch.equal(cropped, full(images, shifts))
+    outside = torch.ones(64, 64, dtype=torch.bool)
+    outside[lo:lo + size, lo:lo + size] = False
+    assert cropped[..., outside].abs().max() == 0
+    assert full(images, shifts)[..., outside].abs().max() == 0  # the pixels left out were zeros anyway

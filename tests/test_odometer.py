@@ -366,6 +366,24 @@ def test_default_threads_are_physical_cores(model_path):
     assert RadarOdometer(model_path, threads=1)._model.session.get_session_options().intra_op_num_threads == 1
 
 
+def test_sessions_do_not_spin_and_the_optimisation_level_is_a_choice(model_path):
+    """docs/latency.md: spinning workers held the core the read-ahead thread needed; spinning and
+    the other optimisation levels stay available by name."""
+    import onnxruntime as ort
+
+    from radar_odom.errors import ConfigError
+    from radar_odom.onnx_model import OnnxModel, session_options
+
+    so = RadarOdometer(model_path)._model.session.get_session_options()
+    assert so.get_session_config_entry("session.intra_op.allow_spinning") == "0"
+    assert so.graph_optimization_level == ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    so = OnnxModel(model_path, spinning=True, optimization="basic").session.get_session_options()
+    assert so.get_session_config_entry("session.intra_op.allow_spinning") == "1"
+    assert so.graph_optimization_level == ort.GraphOptimizationLevel.ORT_ENABLE_BASIC
+    with pytest.raises(ConfigError, match="optimization must be one of"):
+        session_options(1, optimization="fast")
+
+
 def test_sweep_problem_thresholds():
     base = render_scan(world_points(), np.eye(3), T0_US)
     assert sweep_problem(base) is None

@@ -146,12 +146,13 @@ def _calibrated_checkpoint(path):
 def test_export_names_its_output_by_search_and_form(recorded_exports, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     ckpt = _calibrated_checkpoint(tmp_path / "m.pt")
-    for argv in (["cart-0.4"], ["cart-0.4", "--search", "decoupled"], ["cart-0.4", "--search", "exhaustive"],
+    for argv in (["cart-0.4"], ["cart-0.4", "--search", "fast", "--form", "sequence"],
+                 ["cart-0.4", "--search", "exhaustive"],
                  [str(ckpt)], [str(ckpt), "--search", "exhaustive"], [str(ckpt), "--form", "sequence"]):
         assert main(["export", *argv]) == 0
     names = [out.replace(str(tmp_path) + "/", "") for out, _ in recorded_exports]
     # a user's checkpoint: the fast search is its default, as the shipped models'
-    assert names == ["cart-0.4.onnx", "cart-0.4-decoupled.onnx", "cart-0.4-exhaustive.onnx", "m.onnx",
+    assert names == ["cart-0.4.onnx", "cart-0.4-fast-sequence.onnx", "cart-0.4-exhaustive.onnx", "m.onnx",
                      "m-exhaustive.onnx", "m-fast-sequence.onnx"]
     assert [kw["search"] for _, kw in recorded_exports][3:] == ["fast", "exhaustive", "fast"]
 

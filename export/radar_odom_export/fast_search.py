@@ -123,9 +123,13 @@ class FastSearchSettings:
 # A band of ±1 step is faster but puts the true yaw at the band's edge whenever the coarse pick
 # is one step off, which biases the soft-argmax (4 held-out drives at 0.4 m/px: 0.0027 deg/m
 # against 0.0003 exhaustive); ±2 steps matched the exhaustive search at every resolution.
+# At 256 px the coarse stage scores every 3rd yaw (issue 43): the parabola through the best coarse
+# score and its neighbours centres the ±2 band as well as every 2nd did (the same poses on 80
+# simulated sweeps, the scorecard no worse: docs/scorecard.md) for two thirds of the coarse rotations
+# (the graph 0.88x; docs/latency.md, "Half the step").
 DEFAULT_SETTINGS = {
     128: FastSearchSettings(coarse_factor=2, coarse_stride=2, band_half_width=2),
-    256: FastSearchSettings(coarse_factor=4, coarse_stride=2, band_half_width=2),
+    256: FastSearchSettings(coarse_factor=4, coarse_stride=3, band_half_width=2),
     512: FastSearchSettings(coarse_factor=8, coarse_stride=1, band_half_width=2),
 }
 

@@ -90,12 +90,23 @@ def check_threads(threads, name: str = "threads") -> int | None:
     return int(threads)
 
 
-def session_options(threads: int | None = None, enable_profiling: bool = False, profile_prefix=None):
+OPTIMIZATION_LEVELS = ("basic", "extended", "all")
+
+
+def session_options(threads: int | None = None, enable_profiling: bool = False, profile_prefix=None,
+                    spinning: bool = False, optimization: str | None = None):
     """onnxruntime ``SessionOptions`` for a one-sweep-at-a-time stream.
 
     ``threads`` intra-op workers (default: `physical_cores`; `check_threads`), one inter-op worker and sequential
-    execution (the graph is a single chain, parallel branches would only contend for cores),
-    all graph optimisations on. ``enable_profiling`` writes onnxruntime's per-node JSON trace.
+    execution (the graph is a single chain, parallel branches would only contend for cores).
+    ``optimization``: onnxruntime's graph optimisation level, ``"all"`` by default (its own default:
+    NCHWc convolution layouts and every fusion); ``"basic"`` measured from 0.7× to 1.13× its step
+    time on a shared 2-core machine, so the default stays (docs/latency.md, "Half the step").
+    ``enable_profiling`` writes onnxruntime's per-node JSON trace.
+    ``spinning``: let the intra-op workers busy-wait between operators (onnxruntime's default). Off
+    here: most of the step's ~850 operators are small, so a spinning worker holds a core it does not
+    use, the core the read-ahead thread needs to decode the next sweep, or another process's
+    (docs/latency.md, "Pipeline").
     """
     import onnxruntime as ort
 
@@ -104,8 +115,15 @@ def session_options(threads: int | None = None, enable_profiling: bool = False, 
     so.intra_op_num_threads = threads or physical_cores()
     so.inter_op_num_threads = 1
     so.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-    so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    if optimization not in (None, *OPTIMIZATION_LEVELS):
+        raise ConfigError(f"optimization must be one of {OPTIMIZATION_LEVELS}, got {optimization!r}")
+    so.graph_optimization_level = {
+        "basic": ort.GraphOptimizationLevel.ORT_ENABLE_BASIC,
+        "extended": ort.GraphOptimizationLevel.ORT_ENABLE_EXTENDED,
+        "all": ort.GraphOptimizationLevel.ORT_ENABLE_ALL,
+    }[optimization or "all"]
     so.log_severity_level = 3  # warnings about unused initializers etc. are noise for users
+    so.add_session_config_entry("session.intra_op.allow_spinning", "1" if spinning else "0")
     if enable_profiling:
         so.enable_profiling = True
         if profile_prefix:
@@ -130,10 +148,11 @@ class OnnxModel:
     """An onnxruntime session over a radar-odom ONNX file, with its `ModelInfo`.
 
     ``run(feeds)`` takes float32 arrays by input name and returns a dict of outputs by name.
+    ``spinning``, ``optimization``: `session_options`' (off; "all" by default).
     """
 
     def __init__(self, path, threads: int | None = None, providers=None, enable_profiling=False,
-                 profile_prefix=None):
+                 profile_prefix=None, spinning: bool = False, optimization: str | None = None):
         import onnxruntime as ort
 
         check_threads(threads)  # before the session: a bad count is not a corrupt file
@@ -152,7 +171,7 @@ class OnnxModel:
         try:
             self.session = ort.InferenceSession(
                 str(self.path),
-                sess_options=session_options(threads, enable_profiling, profile_prefix),
+                sess_options=session_options(threads, enable_profiling, profile_prefix, spinning, optimization),
                 providers=list(providers) if providers else ["CPUExecutionProvider"],
             )
             meta = dict(self.session.get_modelmeta().custom_metadata_map)

@@ -1,4 +1,4 @@
-"""``radar-odom export model.pt [-o model.onnx] [--form stream|pair|sequence|sweep] [--search exhaustive|fast|decoupled]
+"""``radar-odom export model.pt [-o model.onnx] [--form stream|pair|sequence|sweep] [--search exhaustive|fast]
 [--opset N] [--exporter auto|dynamo|torchscript] [--quantize int8]``.
 
 A shipped name (``radar-odom export cart-0.4``) reproduces the shipped model: its search, search
@@ -29,7 +29,7 @@ def register(subparsers) -> None:
                                       "shipped one (cart-0.8, cart-0.4): the weights of the pretrained models")
     p.add_argument("-o", "--output", default=None,
                    help="ONNX file to write (default: the checkpoint's name, or NAME for a shipped one, with the "
-                        "search and form appended where they are not its default, e.g. cart-0.4-decoupled.onnx)")
+                        "search and form appended where they are not its default, e.g. cart-0.4-exhaustive.onnx)")
     p.add_argument("--force", action="store_true", help="overwrite the output file if it exists")
     p.add_argument("--form", choices=("stream", "pair", "sequence", "sweep"), default=None,
                    help="stream: (sweep, previous state) -> (pose, covariance, state), masks each sweep once; "
@@ -38,12 +38,13 @@ def register(subparsers) -> None:
                         "(radar_odom.match_sequence; fast search); sweep: the stream form taking the raw polar "
                         "sweep (power, azimuths, range resolution and offset) and drawing the Cartesian image "
                         "itself, for runtimes outside Python (docs/sweep-form.md). Default: stream")
-    p.add_argument("--search", choices=("exhaustive", "fast", "decoupled"), default=None,
+    p.add_argument("--search", choices=("exhaustive", "fast"), default=None,
                    help="exhaustive: score every yaw candidate (the paper's search); fast: coarse-to-fine yaw "
-                        "search, several times faster on a CPU, stream and sequence forms; decoupled: yaw from "
-                        "the magnitude spectra first, then one translation correlation (Fast-MbyM), stream form "
-                        "(default: a shipped name's own search, read from the shipped model; else fast, as the "
-                        "shipped models, or exhaustive for --form pair and for a dual-mode profile)")
+                        "search, several times faster on a CPU, stream and sequence forms (default: a shipped "
+                        "name's own search, read from the shipped model; else fast, as the shipped models, or "
+                        "exhaustive for --form pair and for a dual-mode profile). The decoupled search (Fast-MbyM) "
+                        "is retired from the CLI: 27 %% less accurate and not fast enough to pay for it "
+                        "(docs/latency.md)")
     p.add_argument("--no-calibrate", action="store_true",
                    help="write a checkpoint that was never calibrated as it is: its covariance is then the raw "
                         "softmax moment, not a calibrated 1σ (most estimates come out prior_dominated); warned")

@@ -35,10 +35,9 @@ def register(subparsers) -> None:
                    help="grid profiles to cover; one without a model in --models uses the shipped model of that "
                         "name, or else an untrained export timed only, e.g. cart-0.2 (needs torch) (default: the "
                         "shipped models)")
-    p.add_argument("--search", choices=("fast", "exhaustive", "decoupled"), default="fast",
-                   help="rotation search of the untrained exports: coarse-to-fine, every yaw candidate, or "
-                        "decoupled (yaw from the magnitude spectra, then one translation correlation); a model "
-                        "given in --models is timed with the search its file names")
+    p.add_argument("--search", choices=("fast", "exhaustive"), default="fast",
+                   help="rotation search of the untrained exports: coarse-to-fine or every yaw candidate; a "
+                        "model given in --models is timed with the search its file names")
     p.add_argument(
         "--threads", type=threads_arg, default=None, help="onnxruntime threads (default: physical cores)%(default).0s"
     )

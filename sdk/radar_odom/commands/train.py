@@ -118,8 +118,9 @@ def register(subparsers) -> None:
         choices=("exhaustive", "decoupled"),
         default="exhaustive",
         help="the search the pose loss goes through: exhaustive (the volume of every yaw and shift candidate); "
-        "decoupled (yaw from the magnitude spectra, then one translation correlation, as `radar-odom export "
-        "--search decoupled` writes it; --pose-loss mse only) (default: %(default)s)",
+        "decoupled (yaw from the magnitude spectra, then one translation correlation, as the library's "
+        "radar_odom_export.onnx_export.export_decoupled writes it, retired from `radar-odom export`: "
+        "docs/latency.md; --pose-loss mse only) (default: %(default)s)",
     )
     g.add_argument(
         "--yaw-weight",
