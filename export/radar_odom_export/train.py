@@ -464,7 +464,7 @@ def train(
         from .symmetry import constrain_left_right_
 
         constrain_left_right_(model.masker)
-        record["masker_symmetry"] = "left-right: every kernel constrained to (W + W.flip(-1))/2 while training (issue 41)"
+        record["masker_symmetry"] = "left-right: every kernel constrained to (W + W.flip(-1))/2 in training (issue 41)"
     params = [p for p in model.parameters() if p.requires_grad]
     optim = torch.optim.Adam(params, lr=cfg.lr)
     history: list[dict] = []
