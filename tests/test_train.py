@@ -737,9 +737,10 @@ def test_symmetric_masker_trains_mirror_equivariant_and_saves_plain_weights(tmp_
     handed = load_checkpoint(src)[0]
     with torch.no_grad():
         assert not torch.allclose(handed.mask(x.flip(-1)), handed.mask(x).flip(-1), atol=1e-4)
-    cfg = _cfg(tmp_path, "sym.pt", lr=1e-2, init_from=str(src), symmetric_masker=True)
+    # two epochs in one run: a checkpoint saved mid-run must leave the constrained model training
+    cfg = _cfg(tmp_path, "sym.pt", lr=1e-2, epochs=2, init_from=str(src), symmetric_masker=True)
     train(cfg, tr, va)
-    train(_cfg(tmp_path, "sym.pt", lr=1e-2, epochs=2, resume=True, symmetric_masker=True), tr, va)
+    train(_cfg(tmp_path, "sym.pt", lr=1e-2, epochs=3, resume=True, symmetric_masker=True), tr, va)
     ckpt = read_checkpoint_dict(tmp_path / "sym.pt")
     assert ckpt["train"]["symmetric_masker"] is True and "masker_symmetry" in ckpt["train"]
     assert set(ckpt["state_dict"]) == set(torch.load(src, weights_only=True)["state_dict"])  # plain names

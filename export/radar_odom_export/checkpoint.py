@@ -15,7 +15,6 @@ stored: they are non-persistent, and keeping the file to the weights keeps it sm
 """
 from __future__ import annotations
 
-import copy
 import os
 from dataclasses import asdict
 from pathlib import Path
@@ -37,7 +36,7 @@ def checkpoint_dict(model, masking: str, train: dict | None = None, calibration:
     """The plain dictionary saved for ``model`` (a ``MaskedCorrelator``)."""
     if masking not in MASKINGS:
         raise ValueError(f"masking={masking!r}: checkpoints describe one of {MASKINGS}")
-    state = {k: v.detach().cpu().clone() for k, v in _plain_weights(model).state_dict().items()}
+    state = {k: v.detach().cpu().clone() for k, v in _plain_state(model).items()}
     out = {
         "format": FORMAT,
         "profile": asdict(model.profile),
@@ -50,20 +49,21 @@ def checkpoint_dict(model, masking: str, train: dict | None = None, calibration:
     return out
 
 
-def _plain_weights(model):
-    """``model`` itself, or, where a layer is parametrized (`symmetry.constrain_left_right_`
-    during training), a copy with each parametrization folded into a plain weight: the checkpoint
-    keeps the weights the layer uses under their ordinary names, loadable without the constraint."""
-    from torch.nn.utils import parametrize
-
-    if not any(parametrize.is_parametrized(m) for m in model.modules()):
-        return model
-    plain = copy.deepcopy(model)
-    for m in plain.modules():
-        if parametrize.is_parametrized(m):
-            for name in list(m.parametrizations.keys()):
-                parametrize.remove_parametrizations(m, name, leave_parametrized=True)
-    return plain
+def _plain_state(model) -> dict:
+    """``model.state_dict()`` with each parametrized weight (`symmetry.constrain_left_right_`
+    during training) stored as the weight the layer uses, under its ordinary name: the checkpoint
+    loads without the constraint. Built from the state, not by removing the parametrizations
+    from a copy: a copy shares the parametrized class, and removing them there breaks the model."""
+    out = {}
+    for key, value in model.state_dict().items():
+        head, sep, tail = key.partition("parametrizations.")
+        if not sep:
+            out[key] = value
+        elif tail.endswith(".original"):  # "<layer>.parametrizations.<name>.original" -> "<layer>.<name>"
+            name = tail[: -len(".original")]
+            layer = model.get_submodule(head[:-1]) if head else model
+            out[head + name] = getattr(layer, name).detach()
+    return out
 
 
 def save_checkpoint(path, model, masking: str, train: dict | None = None, calibration: dict | None = None) -> Path:
