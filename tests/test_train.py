@@ -740,6 +740,8 @@ def test_symmetric_masker_trains_mirror_equivariant_and_saves_plain_weights(tmp_
     # two epochs in one run: a checkpoint saved mid-run must leave the constrained model training
     cfg = _cfg(tmp_path, "sym.pt", lr=1e-2, epochs=2, init_from=str(src), symmetric_masker=True)
     train(cfg, tr, va)
+    with pytest.raises(CheckpointError, match="with --symmetric-masker"):
+        train(_cfg(tmp_path, "sym.pt", epochs=3, resume=True), tr, va)  # said, not a state_dict key dump
     train(_cfg(tmp_path, "sym.pt", lr=1e-2, epochs=3, resume=True, symmetric_masker=True), tr, va)
     ckpt = read_checkpoint_dict(tmp_path / "sym.pt")
     assert ckpt["train"]["symmetric_masker"] is True and "masker_symmetry" in ckpt["train"]

@@ -488,6 +488,11 @@ def train(
                 f"(differing profile fields: {', '.join(diff) or 'none'}); "
                 f"this run asks for {cfg.profile.name!r} / {cfg.objective!r} — resume with the same settings"
             )
+        if bool(st.get("symmetric_masker", False)) != cfg.symmetric_masker:
+            raise CheckpointError(
+                f"{sp}: was trained {'with' if st.get('symmetric_masker') else 'without'} --symmetric-masker; "
+                "resume with the same settings"
+            )
         model.load_state_dict(st["model"])
         optim.load_state_dict(st["optimizer"])
         start_epoch, step = int(st["epoch"]), int(st["step"])
@@ -646,6 +651,7 @@ def _save_state(cfg, model, optim, epoch, step, best_val, best_epoch, history, s
         "format": STATE_FORMAT,
         "profile": asdict(cfg.profile),
         "objective": cfg.objective,
+        "symmetric_masker": cfg.symmetric_masker,  # the model's state names depend on it
         "model": {k: v.detach().cpu() for k, v in model.state_dict().items()},
         "optimizer": optim.state_dict(),
         "epoch": epoch,
