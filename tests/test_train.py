@@ -742,8 +742,9 @@ def test_symmetric_masker_trains_mirror_equivariant_and_saves_plain_weights(tmp_
     train(cfg, tr, va)
     with pytest.raises(CheckpointError, match="with --symmetric-masker"):
         train(_cfg(tmp_path, "sym.pt", epochs=3, resume=True), tr, va)  # said, not a state_dict key dump
-    train(_cfg(tmp_path, "sym.pt", lr=1e-2, epochs=3, resume=True, symmetric_masker=True), tr, va)
+    train(_cfg(tmp_path, "sym.pt", lr=1e-2, epochs=3, resume=True, init_from=str(src), symmetric_masker=True), tr, va)
     ckpt = read_checkpoint_dict(tmp_path / "sym.pt")
+    assert ckpt["train"]["init_from"] == src.name  # the resume's record still says where it started
     assert ckpt["train"]["symmetric_masker"] is True and "masker_symmetry" in ckpt["train"]
     assert set(ckpt["state_dict"]) == set(torch.load(src, weights_only=True)["state_dict"])  # plain names
     model = model_from_dict(ckpt).eval()

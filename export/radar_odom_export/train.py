@@ -457,6 +457,7 @@ def train(
         raise ValueError(f"masking={cfg.masking!r} has no trainable weights; use masking='learned'")
     if cfg.init_from and not cfg.resume:
         _init_weights(model, cfg.init_from)
+    if cfg.init_from:  # a resume (same arguments) keeps saying where the weights started
         record["init_from"] = Path(cfg.init_from).name  # no build-machine paths in a checkpoint
     if cfg.symmetric_masker:
         # after the init (plain weight names) and before a resume (parametrized names) and the
