@@ -721,3 +721,37 @@ def test_cli_commands_need_torch_only_when_run():
         "assert not [m for m in sys.modules if m.split('.')[0] == 'torch']"
     )
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_symmetric_masker_trains_mirror_equivariant_and_saves_plain_weights(tmp_path, toy):
+    """`--symmetric-masker` (issue 41): from a handed init, after optimiser steps the saved masker
+    maps a left/right flipped sweep to the flipped mask, under the plain weight names, and the
+    constraint survives a resume."""
+    from radar_odom_export.checkpoint import model_from_dict
+    from radar_odom_export.symmetry import is_left_right_symmetric
+
+    tr, va = toy
+    torch.manual_seed(7)
+    src = save_checkpoint(tmp_path / "handed.pt", MaskedCorrelator(TINY), "learned")
+    x = torch.rand(2, TINY.width_px, TINY.width_px)
+    handed = load_checkpoint(src)[0]
+    with torch.no_grad():
+        assert not torch.allclose(handed.mask(x.flip(-1)), handed.mask(x).flip(-1), atol=1e-4)
+    # two epochs in one run: a checkpoint saved mid-run must leave the constrained model training
+    cfg = _cfg(tmp_path, "sym.pt", lr=1e-2, epochs=2, init_from=str(src), symmetric_masker=True)
+    train(cfg, tr, va)
+    with pytest.raises(CheckpointError, match="with --symmetric-masker"):
+        train(_cfg(tmp_path, "sym.pt", epochs=3, resume=True), tr, va)  # said, not a state_dict key dump
+    train(_cfg(tmp_path, "sym.pt", lr=1e-2, epochs=3, resume=True, init_from=str(src), symmetric_masker=True), tr, va)
+    ckpt = read_checkpoint_dict(tmp_path / "sym.pt")
+    assert ckpt["train"]["init_from"] == src.name  # the resume's record still says where it started
+    assert ckpt["train"]["symmetric_masker"] is True and "masker_symmetry" in ckpt["train"]
+    assert set(ckpt["state_dict"]) == set(torch.load(src, weights_only=True)["state_dict"])  # plain names
+    model = model_from_dict(ckpt).eval()
+    assert is_left_right_symmetric(model.masker)
+    start = load_checkpoint(src)[0].masker.state_dict()
+    moved = [k for k, v in model.masker.state_dict().items()
+             if k.endswith("weight") and not torch.allclose(v, 0.5 * (start[k] + start[k].flip(-1)))]
+    assert moved  # the steps changed the kernels, not just symmetrised them
+    with torch.no_grad():
+        torch.testing.assert_close(model.mask(x.flip(-1)), model.mask(x).flip(-1), atol=1e-5, rtol=0)

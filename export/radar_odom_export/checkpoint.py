@@ -36,7 +36,7 @@ def checkpoint_dict(model, masking: str, train: dict | None = None, calibration:
     """The plain dictionary saved for ``model`` (a ``MaskedCorrelator``)."""
     if masking not in MASKINGS:
         raise ValueError(f"masking={masking!r}: checkpoints describe one of {MASKINGS}")
-    state = {k: v.detach().cpu().clone() for k, v in model.state_dict().items()}
+    state = {k: v.detach().cpu().clone() for k, v in _plain_state(model).items()}
     out = {
         "format": FORMAT,
         "profile": asdict(model.profile),
@@ -46,6 +46,23 @@ def checkpoint_dict(model, masking: str, train: dict | None = None, calibration:
     }
     if calibration is not None:
         out["calibration"] = _plain(calibration)
+    return out
+
+
+def _plain_state(model) -> dict:
+    """``model.state_dict()`` with each parametrized weight (`symmetry.constrain_left_right_`
+    during training) stored as the weight the layer uses, under its ordinary name: the checkpoint
+    loads without the constraint. Built from the state, not by removing the parametrizations
+    from a copy: a copy shares the parametrized class, and removing them there breaks the model."""
+    out = {}
+    for key, value in model.state_dict().items():
+        head, sep, tail = key.partition("parametrizations.")
+        if not sep:
+            out[key] = value
+        elif tail.endswith(".original"):  # "<layer>.parametrizations.<name>.original" -> "<layer>.<name>"
+            name = tail[: -len(".original")]
+            layer = model.get_submodule(head[:-1]) if head else model
+            out[head + name] = getattr(layer, name).detach()
     return out
 
 

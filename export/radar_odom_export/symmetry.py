@@ -34,6 +34,30 @@ def symmetrise_left_right_(module: nn.Module) -> int:
     return changed
 
 
+class _LeftRightMean(nn.Module):
+    """Parametrization W -> (W + W.flip(-1)) / 2: the kernel the layer uses is always left/right
+    symmetric, whatever the optimiser does to the stored one (its gradient is the symmetric part)."""
+
+    def forward(self, weight: torch.Tensor) -> torch.Tensor:
+        return 0.5 * (weight + weight.flip(-1))
+
+
+def constrain_left_right_(module: nn.Module) -> int:
+    """Constrain every 2-D convolution (and transposed convolution) in ``module`` to left/right
+    symmetric kernels for training (`torch.nn.utils.parametrize`), in place; returns the number of
+    layers constrained. The stored kernels are symmetrised first, so the constrained weights start
+    where the module was. `checkpoint.checkpoint_dict` saves the plain (symmetric) weights, so
+    export and runtime see an ordinary U-Net."""
+    from torch.nn.utils import parametrize
+
+    symmetrise_left_right_(module)
+    layers = [m for m in module.modules() if isinstance(m, (nn.Conv2d, nn.ConvTranspose2d))]
+    for layer in layers:
+        if not parametrize.is_parametrized(layer, "weight"):
+            parametrize.register_parametrization(layer, "weight", _LeftRightMean())
+    return len(layers)
+
+
 def is_left_right_symmetric(module: nn.Module, atol: float = 0.0) -> bool:
     """Whether every 2-D convolution kernel in ``module`` equals its column flip (to ``atol``)."""
     return all(torch.allclose(layer.weight, layer.weight.flip(-1), rtol=0.0, atol=atol)

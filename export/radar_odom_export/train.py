@@ -90,6 +90,7 @@ class TrainConfig:
     threads: int | None = None
     resume: bool = False
     init_from: str | None = None  # start from another checkpoint's weights (same U-Net shape)
+    symmetric_masker: bool = False  # masker kernels kept left/right symmetric (`symmetry.constrain_left_right_`)
     steps_per_epoch: int | None = None  # cap (None: a full pass over the training pairs)
     real_fraction: float = 0.25  # share of real pairs in the training set when real drives are given
     real_max_skip: int = 4  # real pairs (k, k + s) for s = 1 … this (`real_pairs.SkipPairs`)
@@ -379,6 +380,7 @@ def _config_record(cfg: TrainConfig) -> dict:
         "augment": asdict(cfg.augment),
         "seed": cfg.seed,
         "steps_per_epoch": cfg.steps_per_epoch,
+        "symmetric_masker": cfg.symmetric_masker,
         "loss": {
             "pose": {"mse": _MSE_TEXT, "ce": _CE_TEXT, "ce+mse": f"{_CE_TEXT} + {_MSE_TEXT}"}[cfg.pose_loss],
             "masks": "BCE(mask, static label)",
@@ -454,12 +456,20 @@ def train(
             _write_log(cfg.output, record, [], [])
         return record
 
-    params = [p for p in model.parameters() if p.requires_grad]
-    if not params:
+    if not any(p.requires_grad for p in model.parameters()):
         raise ValueError(f"masking={cfg.masking!r} has no trainable weights; use masking='learned'")
     if cfg.init_from and not cfg.resume:
         _init_weights(model, cfg.init_from)
+    if cfg.init_from:  # a resume (same arguments) keeps saying where the weights started
         record["init_from"] = Path(cfg.init_from).name  # no build-machine paths in a checkpoint
+    if cfg.symmetric_masker:
+        # after the init (plain weight names) and before a resume (parametrized names) and the
+        # optimiser (which must hold the parametrization's stored tensors)
+        from .symmetry import constrain_left_right_
+
+        constrain_left_right_(model.masker)
+        record["masker_symmetry"] = "left-right: every kernel constrained to (W + W.flip(-1))/2 in training (issue 41)"
+    params = [p for p in model.parameters() if p.requires_grad]
     optim = torch.optim.Adam(params, lr=cfg.lr)
     history: list[dict] = []
     steps_log: list[list[float]] = []  # [global step, loss]
@@ -481,6 +491,11 @@ def train(
                 f"{sp}: was made for profile {st['profile'].get('name')!r} / objective {st['objective']!r} "
                 f"(differing profile fields: {', '.join(diff) or 'none'}); "
                 f"this run asks for {cfg.profile.name!r} / {cfg.objective!r} — resume with the same settings"
+            )
+        if bool(st.get("symmetric_masker", False)) != cfg.symmetric_masker:
+            raise CheckpointError(
+                f"{sp}: was trained {'with' if st.get('symmetric_masker') else 'without'} --symmetric-masker; "
+                "resume with the same settings"
             )
         model.load_state_dict(st["model"])
         optim.load_state_dict(st["optimizer"])
@@ -643,6 +658,7 @@ def _save_state(cfg, model, optim, epoch, step, best_val, best_epoch, history, s
         "format": STATE_FORMAT,
         "profile": asdict(cfg.profile),
         "objective": cfg.objective,
+        "symmetric_masker": cfg.symmetric_masker,  # the model's state names depend on it
         "model": {k: v.detach().cpu() for k, v in model.state_dict().items()},
         "optimizer": optim.state_dict(),
         "epoch": epoch,
@@ -870,6 +886,7 @@ def run_from_args(args) -> dict:
             threads=args.threads,
             resume=args.resume,
             init_from=getattr(args, "init_from", None),
+            symmetric_masker=getattr(args, "symmetric_masker", False),
             steps_per_epoch=args.steps_per_epoch,
             real_fraction=getattr(args, "real_fraction", 0.25),
             info=info,

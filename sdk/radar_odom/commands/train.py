@@ -147,6 +147,13 @@ def register(subparsers) -> None:
         help="start from another checkpoint's weights (same U-Net size), e.g. a cart-0.8 model for "
         "cart-0.4, whose U-Net runs on the same 0.8 m/px grid (mask_downsample 2)",
     )
+    g.add_argument(
+        "--symmetric-masker",
+        action="store_true",
+        help="keep every masker kernel left/right symmetric while training (each the mean of itself and its "
+        "column flip), so the masker, and with it the graph, is mirror-equivariant: no yaw from a handed "
+        "masker on straight roads (docs/yaw-precision.md); the checkpoint holds plain symmetric weights",
+    )
     p.set_defaults(func=run)
 
 
