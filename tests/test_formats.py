@@ -267,8 +267,11 @@ def test_an_explicit_format_that_the_folder_contradicts_warns(tmp_path):
 
     seq = write_drive(tmp_path / "seq", seed=2, frames=1, progress=False)
     png = next((seq / "radar").glob("*.png"))
-    with pytest.warns(FormatWarning, match=r"read as 'mulran' as asked, but its header holds µs timestamps"):
+    with pytest.warns(FormatWarning) as record:  # the header and the folder both contradict it: two warnings
         scan = load_scan(png, format="mulran")
+    said = [str(w.message) for w in record]
+    assert any("read as 'mulran' as asked, but its header holds µs timestamps" in m for m in said), said
+    assert any("its folder is laid out as 'oxford'" in m for m in said), said
     assert scan.range_resolution_m == pytest.approx(0.05952)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
