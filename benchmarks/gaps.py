@@ -5,6 +5,7 @@ tightening turn and across speed changes?
     python benchmarks/gaps.py --models cart-0.4 --gaps 6 --cases bend,turn-in --seeds 10000-10003
     python benchmarks/gaps.py --markdown gaps-table.md
     python benchmarks/gaps.py --cause --models cart-0.4 --seeds 10001   # why a crossing fails; ≈ 1 min
+    python benchmarks/gaps.py --readout --cases bend --gaps 6 --seeds 10020-10021   # crossing vs a match at the truth
 
 Every model runs as `radar_odom.RadarOdometer` runs it (its defaults). Each crossing is a short
 stream: ``--lead`` sweeps before the gap (so the period and the velocity are known), then the
@@ -19,6 +20,12 @@ same interval. Cases (``--cases``), every world simulated (`radar_odom.sim`) fro
   3°/sweep at 6.1 m/s), so the constant-velocity prediction is short of the turn;
 * ``speed``: the simulator's own urban drives (no test hooks), gaps placed where the speed
   changes by at least 1 m/s over the gap (braking for, and accelerating out of, junctions).
+
+``--readout`` prints instead, for every crossing of the chosen cases, gap lengths and seeds, the
+odometer's crossing against one graph match centred on the *true* pose (the best any choice of
+window centre or read-out of the agreeing matches could start from), then per model, case and
+gap length the median / max of both: where the centred match is as far off as the crossing, the
+error is the graph's reading over the long baseline, not where the window was put.
 
 ``--cause`` prints instead, for the ``turn-in`` drive's 6-sweep gaps, what one graph match reads with
 the window centred on the *true* pose (the best any prediction could do) and on the true last
@@ -206,6 +213,32 @@ def cause(models: dict, seeds: list[int], lead: int) -> list[str]:
     return lines
 
 
+def readout(models: dict, todo: list) -> list[str]:
+    """The ``--readout`` table: each crossing (translation m, yaw °, absolute errors; flags) against one
+    match centred on its true pose, then the median / max of the errors per model, case and gap length."""
+    lines = ["| model | case | gap | seed | truth yaw ° | the odometer's crossing: m, ° (flags) | "
+             "one match centred on the truth: m, ° |", "|---|---|---:|---:|---:|---|---|"]
+    rows: dict = {}
+    for name, path in models.items():
+        for c in todo:
+            lead = len(c.scans) - 3  # the stream: lead sweeps, the sweep before the gap, the one after, one more
+            r = cross(path, c)
+            t = single_match_error(path, c.scans[lead], c.scans[lead + 1], c.truth, c.truth)
+            rows.setdefault((name, c.case, c.gap), []).append((r, t))
+            lines.append(f"| {name} | {c.case} | {c.gap} | {c.seed} | {r['truth_yaw']:.2f} | {r['t']:.2f}, "
+                         f"{r['yaw']:.2f} ({', '.join(r['flags'])}) | {t[0]:.2f}, {t[1]:.2f} |")
+            print(lines[-1], flush=True)
+    lines += ["", "| model | case | gap (sweeps) | crossings | crossing m: median / max | crossing °: median / max "
+              "| match at the truth m: median / max | match at the truth °: median / max |",
+              "|---|---|---:|---:|---:|---:|---:|---:|"]
+    for (name, case, gap), rs in rows.items():
+        a = np.array([[r["t"], r["yaw"], t[0], t[1]] for r, t in rs])
+        med, top = np.median(a, axis=0), a.max(axis=0)
+        cells = " | ".join(f"{med[i]:.2f} / {top[i]:.2f}" for i in range(4))
+        lines.append(f"| {name} | {case} | {gap} | {len(rs)} | {cells} |")
+    return lines
+
+
 def table(results: dict) -> list[str]:
     lines = ["| model | case | gap (sweeps) | crossings | truth yaw (abs) ° | translation error m: median / max | "
              "yaw error °: median / max | gated | median d² |", "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
@@ -230,6 +263,8 @@ def main(argv=None) -> int:
     ap.add_argument("--lead", type=int, default=5, help="sweeps before each gap (default: %(default)s)")
     ap.add_argument("--markdown", type=Path, default=None, help="write the table here too")
     ap.add_argument("--cause", action="store_true", help="the turn-in drive's single matches instead (see above)")
+    ap.add_argument("--readout", action="store_true",
+                    help="each crossing against one match centred on the truth (see above)")
     args = ap.parse_args(argv)
 
     from radar_odom import pretrained
@@ -251,6 +286,12 @@ def main(argv=None) -> int:
     todo = [c for case in args.cases.split(",") for s in seeds for c in crossings(case, s, gaps, args.placements,
                                                                                    args.lead)]
     print(f"{len(todo)} crossings simulated in {time.time() - t0:.0f} s", flush=True)
+    if args.readout:
+        lines = readout(models, todo)
+        print("\n".join(lines[lines.index("") + 1:]))
+        if args.markdown:
+            args.markdown.write_text("\n".join(lines) + "\n")
+        return 0
     results: dict = {}
     for name, path in models.items():
         for c in todo:
