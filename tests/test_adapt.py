@@ -317,3 +317,45 @@ def test_adapt_reads_a_ros_bag_as_run_does(sim_drive, small_checkpoint, tmp_path
     rec = report["recordings"][0]
     assert rec["name"] == "drive.mcap" and rec["sweeps"] == 24 and rec["reference"] == "no reference in the recording"
     assert (tmp_path / "from-bag.onnx").is_file()
+
+
+@pytest.mark.torch
+def test_labels_on_one_rank_come_from_the_local_labeller_or_the_cluster_in_recording_order():
+    from radar_odom_export.adapt import labels_on_ranks
+    from radar_odom_export.train import Dist
+
+    assert labels_on_ranks(Dist(), 3, lambda k: ("local", k)) == [("local", 0), ("local", 1), ("local", 2)]
+    assert labels_on_ranks(Dist(), 2, None, lambda: ["a", "b"]) == ["a", "b"]
+
+
+@pytest.mark.slow
+@pytest.mark.torch
+def test_adapt_under_torchrun_trains_on_two_ranks_and_rank_0_alone_writes(sim_drive, small_checkpoint, tmp_path):
+    """`torchrun --nproc_per_node=2 -m radar_odom adapt`: two recordings (one labelled by each rank, then
+    gathered), DDP training with both ranks in step, one model, checkpoint and report, printed once."""
+    import os
+    import subprocess
+    import sys
+
+    from radar_odom.onnx_model import OnnxModel
+    from radar_odom_export.checkpoint import read_checkpoint_dict
+
+    out = tmp_path / "out" / "mine.onnx"
+    out.parent.mkdir()
+    env = {**os.environ, "RADAR_ODOM_CACHE": str(tmp_path / "cache"), "OMP_NUM_THREADS": "1"}
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2",
+           "-m", "radar_odom", "adapt", str(sim_drive), str(sim_drive), "-o", str(out), "--from", str(small_checkpoint),
+           "--minutes", "0.05", "--epochs", "1", "--threads", "1", "--keep", "fine-tuned"]
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+
+    assert sorted(p.name for p in out.parent.iterdir()) == [
+        "mine.adapt.json", "mine.log.json", "mine.loss.png", "mine.onnx", "mine.pt", "mine.state.pt"]
+    assert OnnxModel(out).info.form == "stream"
+    rec = read_checkpoint_dict(out.with_suffix(".pt"))["train"]
+    assert rec["world_size"] == 2 and rec["ranks_in_sync"] is True
+    assert rec["rank_steps"][0] == rec["rank_steps"][1] == rec["steps"] > 0
+    report = json.loads(out.with_suffix(".adapt.json").read_text())
+    assert [r["sweeps"] for r in report["recordings"]] == [24, 24]
+    assert proc.stdout.count("self-consistency (graph alone)") == 2  # one report, a table per recording
+    assert proc.stdout.count(f"wrote {out},") == 1

@@ -32,6 +32,10 @@ Two candidates leave: the base's masker and the fine-tuned one, each with its ow
 well as the base's (A→C against A→B ∘ B→C, translation and yaw: no reference needed) and it did
 not collapse toward standing still (`check_collapse`: a mask that keeps only sensor-fixed content
 reads every step shorter).
+
+Under ``torchrun`` (``dist``: `train.init_distributed`) every rank reads the recordings and labels its
+share of them (`labels_on_ranks`), trains on its shard of the pairs inside `train.train`'s
+DistributedDataParallel, and only rank 0 exports, scores and writes; the others return None.
 """
 from __future__ import annotations
 
@@ -371,27 +375,47 @@ def check_adapt_config(cfg: AdaptConfig, output) -> None:
                           "not exist); run without --resume")
 
 
+def labels_on_ranks(d, n: int, label_one, label_all=None) -> list:
+    """Every recording's pseudo-labels ``label_one(k)`` / ``label_all()[k]``, k < ``n``, on every rank of
+    ``d`` (`train.Dist`): recording k is labelled by rank k mod world (``label_all``, a Ray labeller that is
+    parallel already, by rank 0 alone), then gathered, so no recording is labelled twice."""
+    import torch
+
+    if label_all is not None:
+        mine = dict(enumerate(label_all())) if d.main else {}
+    else:
+        mine = {k: label_one(k) for k in range(d.rank, n, d.world)}
+    if d.active:
+        parts = [None] * d.world
+        torch.distributed.all_gather_object(parts, mine)
+        mine = {k: v for part in parts for k, v in part.items()}
+    return [mine[k] for k in range(n)]
+
+
 def adapt(recordings, output, cfg: AdaptConfig, topic: str | None = None, sweeps: slice = slice(None),
-          labeller=None) -> dict:
+          labeller=None, dist=None) -> dict | None:
     """Fine-tune ``cfg.base`` on ``recordings`` (folders or bags, no reference needed), write
     ``output`` (.onnx, the base's search and form), the checkpoint beside it (``.pt``) and a report
     (``.adapt.json``); returns the report. See the module docstring for the method. ``labeller``: None
     labels the recordings one after the other here, else ``labeller(base_onnx, recordings, topic, sweeps)``
-    gives every recording's (poses, relative poses) at once (`adapt_labels.ray_labeller`: Ray workers)."""
+    gives every recording's (poses, relative poses) at once (`adapt_labels.ray_labeller`: Ray workers).
+    ``dist`` (`train.Dist`, under torchrun): every rank trains on its shard; only rank 0 exports, scores and
+    writes; the other ranks return None."""
     import torch
 
     from .checkpoint import read_checkpoint_dict, write_checkpoint_dict
     from .data import Drive, build_drives, check_seed_policy, scan_to_cartesian, sensor_specs
     from .onnx_export import export_checkpoint
-    from .train import TrainConfig, train
+    from .train import Dist, TrainConfig, main_first, train
 
+    d = dist or Dist()
     t0 = time.perf_counter()
     output = Path(output)
     check_adapt_config(cfg, output)  # every refusal before the recordings are read and labelled (minutes)
     ckpt_out = output.with_suffix(".pt")
     report_path = output.with_suffix(".adapt.json")
     check_seed_policy(cfg.sim_seeds, "train")
-    threads = cfg.threads or max(1, os.cpu_count() or 1)
+    threads = cfg.threads or max(1, (os.cpu_count() or 1) // d.world)
     workdir = Path(tempfile.mkdtemp(prefix="radar-odom-adapt-"))
     base_ckpt, base_onnx, export_how = base_files(cfg.base, workdir)
     base = read_checkpoint_dict(base_ckpt)
@@ -399,12 +423,13 @@ def adapt(recordings, output, cfg: AdaptConfig, topic: str | None = None, sweeps
 
     profile = GridProfile.from_dict(base["profile"])
 
-    labelled = None if labeller is None else labeller(base_onnx, recordings, topic, sweeps)
     recs = [read_recording(r, topic, sweeps) for r in recordings]
+    labelled = labels_on_ranks(
+        d, len(recs), lambda k: run_runtime(base_onnx, recs[k].scans, threads, desc=f"pseudo-labels {recs[k].name}"),
+        None if labeller is None else lambda: labeller(base_onnx, recordings, topic, sweeps))
     drives, held = [], []
     for k, rec in enumerate(recs):
-        rec.poses, rel = labelled[k] if labelled is not None else run_runtime(
-            base_onnx, rec.scans, threads, desc=f"pseudo-labels {rec.name}")
+        rec.poses, rel = labelled[k]
         labels = vehicle_chord(rel) if cfg.vehicle_prior else rel
         cut = holdout_split(len(rec.scans), cfg.holdout_fraction)
         images = np.stack([scan_to_cartesian(s, profile).astype(np.float16)
@@ -412,20 +437,25 @@ def adapt(recordings, output, cfg: AdaptConfig, topic: str | None = None, sweeps
         drives.append(Drive(f"adapt:{rec.name}[:{cut}]", images[:cut], labels[: cut - 1].astype(np.float32)))
         held.append(Drive(f"adapt:{rec.name}[{cut}:]", images[cut:], labels[cut:].astype(np.float32)))
         rec.cut, rec.rel = cut, rel
-    sim = build_drives(profile, sensor_specs(cfg.sim_seeds, cfg.sim_scenarios, cfg.sim_frames, "randomised"),
-                       min(2, threads), desc="simulated drives")
+    with main_first(d):  # rank 0 fills the drive cache, the others read it
+        sim = build_drives(profile, sensor_specs(cfg.sim_seeds, cfg.sim_scenarios, cfg.sim_frames, "randomised"),
+                           min(2, threads), desc="simulated drives")
     prep_s = time.perf_counter() - t0
     remaining = float(cfg.minutes)
     ends = time.strftime("%H:%M", time.localtime(time.time() + 60 * remaining))
-    print(f"adapt: {sum(len(r.scans) for r in recs)} sweeps read and labelled in {prep_s / 60:.1f} min; training "
-          f"{remaining:.0f} min at most (ends by {ends}), then the held-out report", file=sys.stderr, flush=True)
+    if d.main:
+        print(f"adapt: {sum(len(r.scans) for r in recs)} sweeps read and labelled in {prep_s / 60:.1f} min; training "
+              f"{remaining:.0f} min at most (ends by {ends}), then the held-out report", file=sys.stderr, flush=True)
     tcfg = TrainConfig(
         output=str(ckpt_out), profile=profile, lr=cfg.lr, lr_decay=1.0, batch=cfg.batch, pose_loss="ce",
         epochs=cfg.epochs, minutes=remaining, threads=threads, init_from=None if cfg.resume else str(base_ckpt),
         resume=cfg.resume, real_fraction=cfg.real_fraction, real_max_skip=cfg.max_skip, seed=cfg.seed,
         info={**cfg.info, "adapt": {k: v for k, v in asdict(cfg).items() if k != "info"}},
     )
-    summary = train(tcfg, sim, held, real_drives=drives)
+    summary = train(tcfg, sim, held, d, real_drives=drives)
+    if not d.main:  # rank 0 alone exports, scores and writes
+        shutil.rmtree(workdir, ignore_errors=True)
+        return None
     # the checkpoint keeps the base's covariance calibration (its profile): no reference to recalibrate on
     ckpt = read_checkpoint_dict(ckpt_out)
     ckpt["train"]["adapted_from"] = Path(str(cfg.base)).name

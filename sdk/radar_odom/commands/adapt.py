@@ -21,7 +21,8 @@ it did not collapse toward standing still; else the base's masker is written wit
 (--keep forces the choice). The report compares shipped, base + mount and fine-tuned + mount
 there (KITTI too where the recording has a reference). Writes OUTPUT (.onnx, searching like the
 base), the checkpoint beside it (.pt) and the report (.adapt.json). Interrupted? Run the same
-command with --resume. Needs the export extra (torch). About 15 min for 230 sweeps on 2 CPU cores."""
+command with --resume. Needs the export extra (torch). About 15 min for 230 sweeps on 2 CPU cores.
+Under `torchrun --nproc_per_node=N -m radar_odom adapt ...` the ranks train together; rank 0 writes (docs/fleet.md)."""
 
 
 def register(subparsers) -> None:
@@ -73,6 +74,7 @@ def run(args) -> int:
         import torch  # noqa: F401
 
         from radar_odom_export.adapt import AdaptConfig, adapt, format_report, parse_sweeps
+        from radar_odom_export.train import init_distributed, shutdown_distributed
     except ImportError as exc:
         raise MissingExtraError(getattr(exc, "name", None) or "torch", "export") from exc
     out = Path(args.output)
@@ -91,9 +93,15 @@ def run(args) -> int:
 
         import_ray()  # the install line now, not after the base model is prepared
         labeller = ray_labeller(args.address)
-    with cli_warnings("adapt"):
-        report = adapt(args.recordings, out, cfg, topic=args.topic, sweeps=parse_sweeps(args.sweeps),
-                       labeller=labeller)
+    d = init_distributed()  # torchrun's ranks (docs/fleet.md); one process otherwise
+    try:
+        with cli_warnings("adapt"):
+            report = adapt(args.recordings, out, cfg, topic=args.topic, sweeps=parse_sweeps(args.sweeps),
+                           labeller=labeller, dist=d)
+    finally:
+        shutdown_distributed(d)
+    if report is None:  # a rank other than 0: it trained its shard, rank 0 writes and reports
+        return 0
     print(format_report(report))
     print(f"wrote {out}, {out.with_suffix('.pt')} and {out.with_suffix('.adapt.json')}")
     return 0
