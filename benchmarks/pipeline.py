@@ -38,16 +38,11 @@ CONFIGS = {  # name: (intra-op threads, prefetch, spinning)
 def run_once(model_path, paths, threads: int, prefetch: int, spinning: bool, warmup: int = 3) -> dict:
     """One run of ``paths`` through a fresh odometer: wall per sweep and the stages' medians (s)."""
     from radar_odom import RadarOdometer
-    from radar_odom.odometry.pipeline import iter_estimates
+    from radar_odom.latency.files import timed_stream
     from radar_odom.onnx_model import OnnxModel
 
     odo = RadarOdometer(OnnxModel(model_path, threads, spinning=spinning), max_gap_s=1e6)
-    with iter_estimates(paths[:warmup], odo, prefetch=0) as warm:
-        for _ in warm:
-            pass
-    with iter_estimates(paths[warmup:], odo, prefetch=prefetch) as stream:
-        for _ in stream:
-            pass
+    stream = timed_stream(paths, odo, warmup=warmup, prefetch=prefetch)
     return {"wall": stream.wall_s / stream.count, "read": statistics.median(stream.load_seconds),
             "step": statistics.median(stream.step_seconds)}
 

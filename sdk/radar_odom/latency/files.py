@@ -31,12 +31,26 @@ def write_recording(pngs: list[bytes], folder, count: int) -> list[Path]:
     return paths
 
 
+def timed_stream(paths: list, odo, *, warmup: int, prefetch: int):
+    """Stream ``paths[warmup:]`` through ``odo`` with ``prefetch`` read-ahead, after the first ``warmup``
+    files ran through it serially (sessions and caches warm, not timed); returns the finished stream,
+    which timed its own loop (``wall_s``, ``load_seconds``, ``step_seconds``, ``throughput()``)."""
+    from ..odometry.pipeline import iter_estimates
+
+    with iter_estimates(paths[:warmup], odo, prefetch=0) as warm:
+        for _ in warm:
+            pass
+    with iter_estimates(paths[warmup:], odo, prefetch=prefetch) as stream:
+        for _ in stream:
+            pass
+    return stream
+
+
 def file_throughput(model_path, pngs: list[bytes], *, sweeps: int = 100, threads: int = 2,
                     prefetch: int = 2, warmup: int = 5) -> dict:
     """`radar_odom.odometry.pipeline.throughput` of ``sweeps`` files through a fresh `RadarOdometer`,
     pipelined (``prefetch``) and serial (prefetch 0), as dicts keyed "pipelined" / "serial"."""
     from ..odometry.odometer import RadarOdometer
-    from ..odometry.pipeline import iter_estimates
 
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -44,11 +58,6 @@ def file_throughput(model_path, pngs: list[bytes], *, sweeps: int = 100, threads
         odo = RadarOdometer(model_path, threads=threads, max_gap_s=10.0)
         for label, depth in (("pipelined", prefetch), ("serial", 0)):
             odo.reset()
-            with iter_estimates(paths[:warmup], odo, prefetch=0) as warm:
-                for _ in warm:
-                    pass
-            with iter_estimates(paths[warmup:], odo, prefetch=depth) as stream:
-                for _ in stream:
-                    pass
+            stream = timed_stream(paths, odo, warmup=warmup, prefetch=depth)
             out[label] = stream.throughput().as_dict()  # the stream times its own loop
     return out
