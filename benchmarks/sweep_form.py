@@ -69,7 +69,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--models", default="cart-0.4,cart-0.8", help="shipped names (default: %(default)s)")
     ap.add_argument("--runtimes", default="onnxruntime",
-                    help="comma-separated: onnxruntime, openvino (default: %(default)s)")
+                    help="comma-separated, of radar_odom.runtimes.RUNTIMES: onnxruntime, openvino, "
+                         "onnxruntime-openvino (default: %(default)s)")
     ap.add_argument("--rounds", type=int, default=200, help="timed rounds (default: %(default)s)")
     ap.add_argument("--warmup", type=int, default=10, help="untimed rounds first (default: %(default)s)")
     ap.add_argument("--threads", type=int, default=2, help="inference threads (default: %(default)s)")

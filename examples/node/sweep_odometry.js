@@ -2,11 +2,17 @@
 // Radar odometry from Oxford-layout sweep PNGs with a radar-odom sweep-form ONNX file, on onnxruntime-node.
 //
 //   node sweep_odometry.js MODEL.onnx SWEEP.png... [--range-resolution-m 0.0432] [--range-offset-m 0] [--threads N]
+//                          [--time STEPS [--warmup W]]
 //
 // MODEL.onnx: `radar-odom export cart-0.4 --form sweep` (docs/sweep-form.md). Prints one JSON line per sweep:
 // {"sweep": name, "pose": [x m, y m, yaw rad] | null, "covariance": [9 numbers] | null}; the pose is the sweep's
 // in the previous sweep's frame (Oxford convention), null for the first. The graph's own poses: the Python
 // SDK's RadarOdometer fuses them with a motion prior by default (motion_prior=False gives these).
+//
+// --time STEPS: the step time instead. The sweeps are read once, then W untimed steps (default 10) and STEPS timed
+// ones run over them cycled, the state chained; a step is the sweep's tensors and one run, from the sweep in memory
+// to the pose (as benchmarks/sweep_form.py times the Python SDK's). Prints one JSON line:
+// {"steps": STEPS, "threads": N, "median_ms": m, "p90_ms": p, "step_ms": [every timed step]}.
 const fs = require('fs');
 const path = require('path');
 const { PNG } = require('pngjs');
@@ -17,17 +23,21 @@ const HEADER_BYTES = 11; // per row: int64 µs timestamp, uint16 encoder count, 
 const VALID_BYTE = 255;
 
 function parseArgs(argv) {
-  const opts = { rangeResolutionM: 0.0432, rangeOffsetM: 0.0, threads: 1, files: [] };
+  const opts = { rangeResolutionM: 0.0432, rangeOffsetM: 0.0, threads: 1, time: 0, warmup: 10, files: [] };
   for (let i = 0; i < argv.length; i++) {
     const a = argv[i];
     if (a === '--range-resolution-m') opts.rangeResolutionM = Number(argv[++i]);
     else if (a === '--range-offset-m') opts.rangeOffsetM = Number(argv[++i]);
     else if (a === '--threads') opts.threads = Number(argv[++i]);
+    else if (a === '--time') opts.time = Number(argv[++i]);
+    else if (a === '--warmup') opts.warmup = Number(argv[++i]);
     else opts.files.push(a);
   }
-  if (opts.files.length < 2 || !(opts.rangeResolutionM > 0) || !Number.isFinite(opts.rangeOffsetM)) {
+  const whole = (n, least) => Number.isInteger(n) && n >= least;
+  if (opts.files.length < 2 || !(opts.rangeResolutionM > 0) || !Number.isFinite(opts.rangeOffsetM) ||
+      !whole(opts.threads, 1) || !whole(opts.time, 0) || !whole(opts.warmup, 0)) {
     throw new Error('usage: node sweep_odometry.js MODEL.onnx SWEEP.png... [--range-resolution-m M] ' +
-                    '[--range-offset-m M] [--threads N]');
+                    '[--range-offset-m M] [--threads N ≥ 1] [--time STEPS ≥ 1 [--warmup W ≥ 0]]');
   }
   return opts;
 }
@@ -66,10 +76,49 @@ function readOxfordSweep(file) {
   return { power, azimuths: Float32Array.from(azimuths), rows, bins };
 }
 
+// One step: the sweep's tensors and one run of the graph with the previous state.
+function step(session, sweep, opts, state) {
+  return session.run({
+    power: new ort.Tensor('float32', sweep.power, [sweep.rows, sweep.bins]),
+    azimuths_rad: new ort.Tensor('float32', sweep.azimuths, [sweep.rows]),
+    range_resolution_m: new ort.Tensor('float32', Float32Array.of(opts.rangeResolutionM), [1]),
+    range_offset_m: new ort.Tensor('float32', Float32Array.of(opts.rangeOffsetM), [1]),
+    prev_state: state,
+  });
+}
+
+// The value below which a fraction q of the sorted values lies, linearly interpolated (numpy's default percentile).
+function quantile(sorted, q) {
+  const at = (sorted.length - 1) * q;
+  const lo = Math.floor(at);
+  const hi = Math.min(lo + 1, sorted.length - 1);
+  return sorted[lo] + (sorted[hi] - sorted[lo]) * (at - lo);
+}
+
+async function timeSteps(session, sweeps, opts, state) {
+  const sweepData = sweeps.map(readOxfordSweep);
+  const stepMs = [];
+  for (let i = 0; i < opts.warmup + opts.time; i++) {
+    const t0 = process.hrtime.bigint();
+    state = (await step(session, sweepData[i % sweepData.length], opts, state)).state;
+    if (i >= opts.warmup) stepMs.push(Number(process.hrtime.bigint() - t0) / 1e6);
+  }
+  const sorted = [...stepMs].sort((a, b) => a - b);
+  console.log(JSON.stringify({
+    steps: opts.time, threads: opts.threads, median_ms: quantile(sorted, 0.5), p90_ms: quantile(sorted, 0.9),
+    step_ms: stepMs,
+  }));
+}
+
 async function main() {
   const opts = parseArgs(process.argv.slice(2));
   const [modelPath, ...sweeps] = opts.files;
-  const session = await ort.InferenceSession.create(modelPath, { intraOpNumThreads: opts.threads });
+  // the Python SDK's session settings (radar_odom.onnx_model.session_options): one inter-op worker, sequential,
+  // and intra-op workers that sleep between operators rather than spin (a spinning one holds a core it does not use)
+  const session = await ort.InferenceSession.create(modelPath, {
+    intraOpNumThreads: opts.threads, interOpNumThreads: 1, executionMode: 'sequential',
+    extra: { 'session.intra_op.allow_spinning': '0' },
+  });
   const stateInput = session.inputMetadata.find((m) => m.name === 'prev_state');
   if (!stateInput || session.inputNames[0] !== 'power') {
     throw new Error(`${modelPath}: not a sweep-form model (inputs ${session.inputNames}); export one with ` +
@@ -77,15 +126,9 @@ async function main() {
   }
   let state = new ort.Tensor('float32', new Float32Array(stateInput.shape.reduce((a, b) => a * b, 1)),
                              stateInput.shape);
+  if (opts.time > 0) return timeSteps(session, sweeps, opts, state);
   for (let i = 0; i < sweeps.length; i++) {
-    const sweep = readOxfordSweep(sweeps[i]);
-    const out = await session.run({
-      power: new ort.Tensor('float32', sweep.power, [sweep.rows, sweep.bins]),
-      azimuths_rad: new ort.Tensor('float32', sweep.azimuths, [sweep.rows]),
-      range_resolution_m: new ort.Tensor('float32', Float32Array.of(opts.rangeResolutionM), [1]),
-      range_offset_m: new ort.Tensor('float32', Float32Array.of(opts.rangeOffsetM), [1]),
-      prev_state: state,
-    });
+    const out = await step(session, readOxfordSweep(sweeps[i]), opts, state);
     state = out.state; // the first sweep's pose is against an empty state: only its state is kept
     const first = i === 0;
     console.log(JSON.stringify({

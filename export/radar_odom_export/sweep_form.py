@@ -26,7 +26,8 @@ is what OpenCV 5's ``cv2.remap`` computes (OpenCV 4 rounds sample positions to 1
 
 Every op is in the default ONNX domain at the stream graph's opset: Shape, Slice, Squeeze, Reshape, Concat,
 Range, ConstantOfShape, Cast, Floor, Clip, Min, arithmetic, Mod, Less, GreaterOrEqual, ScatterElements
-(reduction add), CumSum and GatherElements; tested on onnxruntime (Python and Node.js) and OpenVINO.
+(reduction add), CumSum and GatherElements; tested on onnxruntime (Python and Node.js), OpenVINO and
+onnxruntime's OpenVINO execution provider (whole: no Reshape to an empty shape, which that provider refuses).
 ``Gather`` of single elements and ``GridSample`` run 20-40x slower than ``GatherElements`` and
 ``cv2.remap`` on onnxruntime's CPU provider (docs/latency.md), so neither is used.
 
@@ -102,7 +103,12 @@ def sweep_frontend(resolution_m: float, width_px: int, near_range_m: float, opse
     half, zero, one = g.const("half", [0.5]), g.const("zero", [0.0]), g.const("one", [1.0])
     i0, i1, i_1 = g.const("i0", [0], np.int64), g.const("i1", [1], np.int64), g.const("i_minus1", [-1], np.int64)
     i2, i_end = g.const("i2", [2], np.int64), g.const("i_end", [2**62], np.int64)
-    scalar = g.const("scalar_shape", np.zeros(0), np.int64)  # Reshape to a 0-d tensor (Clip's bounds)
+
+    def scalar(x):
+        """A [1] tensor as a 0-d one (Clip's bounds, Range's limit). Squeeze, not Reshape to the empty shape:
+        onnxruntime's OpenVINO provider refuses a Reshape whose shape has a zero-sized dimension, which split the
+        graph there (docs/latency.md, "Runtimes and the sweep form")."""
+        return g.op("Squeeze", x, i0)
 
     # sizes: A rows, B bins (free in the file)
     shape = g.op("Shape", power)
@@ -136,15 +142,14 @@ def sweep_frontend(resolution_m: float, width_px: int, near_range_m: float, opse
     # range bins: u = (ρ − offset − res/2) / res clamped to [0, B]
     inv_res = g.op("Div", one, res)
     shift = g.op("Add", g.op("Mul", off, inv_res), half)
-    u = g.op("Clip", g.op("Sub", g.op("Mul", c_rho, inv_res), shift), g.op("Reshape", zero, scalar),
-             g.op("Reshape", bins_f, scalar))
+    u = g.op("Clip", g.op("Sub", g.op("Mul", c_rho, inv_res), shift), scalar(zero), scalar(bins_f))
 
     # bilinear taps: padded rows seg and seg + 1 (the interval: ⌊v⌋ but for float rounding), where padded
     # row r is row (r − 1) mod A of the power; bins ⌊u⌋ and ⌊u⌋ + 1, where a bin reads zero past the last one and,
     # as the SDK blanks them, nearer than near_range_m: b < (near − offset)/res − ½ (`readable`, b ≤ B + 1)
     c0 = g.op("Floor", u)
     fx, fy = g.op("Sub", u, c0), g.op("Sub", v, g.op("Cast", seg, to=f32))
-    bin_index = g.op("Range", g.const("b0", 0.0), g.op("Reshape", g.op("Add", bins_f, g.const("two", [2.0])), scalar),
+    bin_index = g.op("Range", g.const("b0", 0.0), scalar(g.op("Add", bins_f, g.const("two", [2.0]))),
                      g.const("b1", 1.0))
     readable = g.op("Cast", g.op("Less", bin_index, bins_f), to=f32)
     if near_range_m > 0:

@@ -43,12 +43,13 @@ class MissingExtraError(RadarOdomError, ImportError):
     """An optional dependency is not installed; the message gives the pip lines (installed
     package and checkout; for the ``export`` extra the CPU torch build first)."""
 
-    def __init__(self, module: str, extra: str):
-        if extra == "export":
+    def __init__(self, module: str, extra: str | None, how: str | None = None):
+        if how is None and extra == "export":
             how = EXPORT_INSTALL_HINT
-        else:
+        elif how is None:
             how = f"pip install \"radar-odom[{extra}]\" (in a checkout: pip install -e \".[{extra}]\")"
-        super().__init__(f"{module!r} is needed for this (the {extra} extra); install it with: {how}")
+        which = f" (the {extra} extra)" if extra else ""
+        super().__init__(f"{module!r} is needed for this{which}; install it with: {how}")
 
 
 class InvalidModelError(ModelMismatchError):

@@ -149,10 +149,14 @@ class OnnxModel:
 
     ``run(feeds)`` takes float32 arrays by input name and returns a dict of outputs by name.
     ``spinning``, ``optimization``: `session_options`' (off; "all" by default).
+    ``providers``: onnxruntime's (default: its CPU provider alone). ``ep_devices``, ``ep_options``: a plugin
+    execution provider's devices (``onnxruntime.get_ep_devices()``) and options, in place of ``providers``.
+    ``session_config``: onnxruntime session configuration entries (``SessionOptions.add_session_config_entry``).
     """
 
     def __init__(self, path, threads: int | None = None, providers=None, enable_profiling=False,
-                 profile_prefix=None, spinning: bool = False, optimization: str | None = None):
+                 profile_prefix=None, spinning: bool = False, optimization: str | None = None,
+                 ep_devices=None, ep_options: dict | None = None, session_config: dict | None = None):
         import onnxruntime as ort
 
         check_threads(threads)  # before the session: a bad count is not a corrupt file
@@ -168,11 +172,15 @@ class OnnxModel:
                 f"export it first: radar-odom export {self.path} (writes {self.path.with_suffix('.onnx')}), then "
                 "give that .onnx file"
             )
+        so = session_options(threads, enable_profiling, profile_prefix, spinning, optimization)
+        if ep_devices:
+            so.add_provider_for_devices(list(ep_devices), dict(ep_options or {}))
+        for key, value in (session_config or {}).items():
+            so.add_session_config_entry(key, value)
         try:
             self.session = ort.InferenceSession(
-                str(self.path),
-                sess_options=session_options(threads, enable_profiling, profile_prefix, spinning, optimization),
-                providers=list(providers) if providers else ["CPUExecutionProvider"],
+                str(self.path), sess_options=so,
+                providers=None if ep_devices else list(providers) if providers else ["CPUExecutionProvider"],
             )
             meta = dict(self.session.get_modelmeta().custom_metadata_map)
         except Exception as exc:  # noqa: BLE001 - onnxruntime raises its own pybind11 exception types

@@ -1,7 +1,9 @@
-"""A radar-odom model file on another runtime than onnxruntime: OpenVINO's own.
+"""A radar-odom model file on another runtime than onnxruntime's CPU provider: OpenVINO's own, or onnxruntime's
+OpenVINO execution provider.
 
-    from radar_odom.runtimes import OpenVinoModel
+    from radar_odom.runtimes import OpenVinoModel, load_model
     odo = RadarOdometer(OpenVinoModel(radar_odom.pretrained("cart-0.4")))
+    odo = RadarOdometer(load_model(radar_odom.pretrained("cart-0.4"), "onnxruntime-openvino"))
 
 `OpenVinoModel` has `OnnxModel`'s interface (``info``, ``path``, ``run(feeds)``), so `RadarOdometer`
 and the tooling take it in its place. The file is read and checked as the runtime always reads it
@@ -15,17 +17,37 @@ differently from the graph as written: with them (f32), poses were up to 2.1 cm 
 onnxruntime's states alike (so not the chain; ``EXECUTION_MODE_HINT: ACCURACY`` does not help). Exposing the
 Mul outputs of the rotation's radial interpolation (``Clip → Floor → Sub`` feeding the taps) as graph outputs,
 which splits the fused kernels there, removes the difference, as ``SNIPPETS_MODE: DISABLE`` does (2e-6 m, 1e-7 rad).
+
+``"onnxruntime-openvino"`` (`openvino_ep_session`) is an `OnnxModel` whose whole graph runs on onnxruntime's
+``OpenVINOExecutionProvider`` (CPU, f32): a node the provider refuses is an error, not a silent fallback to
+onnxruntime's CPU provider (the graph is changed instead: docs/latency.md). Either package brings the provider:
+
+* the ``onnxruntime-openvino`` wheel, an onnxruntime built with that provider; it *replaces* the
+  ``onnxruntime`` package (both install the ``onnxruntime`` module), so give it an environment of its own;
+* the ``onnxruntime-ep-openvino`` plugin library, registered into the stock onnxruntime (≥ 1.23). Its
+  1.8.1 offers only Intel hardware (it skips every device whose vendor id is not 0x8086), so on an AMD CPU
+  it offers no device and the runtime says so.
 """
 from __future__ import annotations
 
+import importlib
+
 import numpy as np
 
-from .errors import InvalidModelError, MissingExtraError
+from .errors import ConfigError, InvalidModelError, MissingExtraError
 from .onnx_model import OnnxModel, check_threads
 
 # f32 arithmetic throughout and no Snippets fusion: the poses of onnxruntime (module docstring)
 OPENVINO_CPU_CONFIG = {"INFERENCE_PRECISION_HINT": "f32", "SNIPPETS_MODE": "DISABLE"}
-RUNTIMES = ("onnxruntime", "openvino")
+RUNTIMES = ("onnxruntime", "openvino", "onnxruntime-openvino")
+OPENVINO_EP = "OpenVINOExecutionProvider"
+# the provider's CPU device computing in f32, as OpenVINO's own runtime is asked to (the DFT matmuls need f32)
+OPENVINO_EP_OPTIONS = {"device_type": "CPU", "precision": "FP32"}
+OPENVINO_EP_PLUGIN = "onnxruntime_ep_openvino"  # the plugin package's module
+INTEL_VENDOR_ID = 0x8086
+# every node on the OpenVINO provider, or no session: a graph split with onnxruntime's CPU provider does not
+# "run on OpenVINO"
+WHOLE_GRAPH = {"session.disable_cpu_ep_fallback": "1"}
 
 
 class OpenVinoModel:
@@ -63,12 +85,64 @@ class OpenVinoModel:
         return {name: np.array(result[port]) for name, port in self._outputs.items()}
 
 
+def openvino_ep_session(threads: int | None = None) -> dict:
+    """`OnnxModel`'s keyword arguments that put a graph on onnxruntime's OpenVINO execution provider (CPU, f32,
+    ``threads`` inference threads): ``providers`` where this onnxruntime has the provider built in (the
+    ``onnxruntime-openvino`` wheel), else ``ep_devices``/``ep_options`` from the ``onnxruntime-ep-openvino`` plugin.
+
+    Raises `MissingExtraError` where neither package is installed, `ConfigError` where the plugin offers no CPU
+    device here (its 1.8.1 offers only Intel hardware)."""
+    import onnxruntime as ort
+
+    options = dict(OPENVINO_EP_OPTIONS)
+    if check_threads(threads):
+        options["num_of_threads"] = str(threads)
+    if OPENVINO_EP in ort.get_available_providers():
+        return {"providers": [(OPENVINO_EP, options)], "session_config": WHOLE_GRAPH}
+    try:
+        plugin = importlib.import_module(OPENVINO_EP_PLUGIN)
+    except ImportError:
+        raise MissingExtraError(
+            "onnxruntime-openvino", None,
+            how="pip install onnxruntime-openvino, in an environment of its own (it replaces the onnxruntime "
+                f"package; onnxruntime {ort.__version__} here has no {OPENVINO_EP}), or on an Intel CPU pip install "
+                "onnxruntime-ep-openvino (a plugin for the stock onnxruntime)") from None
+    devices = _plugin_cpu_devices(ort, plugin)
+    if not devices:
+        vendors = ", ".join(sorted({f"{d.device.vendor} {d.device.vendor_id:#06x}" for d in ort.get_ep_devices()
+                                    if d.device.type == ort.OrtHardwareDeviceType.CPU}))
+        raise ConfigError(f"{OPENVINO_EP_PLUGIN} offers no CPU device here (this CPU: {vendors or 'unknown'}; the "
+                          f"plugin offers only Intel ones, vendor id {INTEL_VENDOR_ID:#06x}): use the "
+                          "onnxruntime-openvino wheel in an environment of its own, or runtime 'openvino'")
+    options.pop("device_type")  # the device is chosen: the plugin's CPU device
+    return {"ep_devices": devices[:1], "ep_options": options, "session_config": WHOLE_GRAPH}
+
+
+_registered_plugins: set = set()
+
+
+def _plugin_cpu_devices(ort, plugin) -> list:
+    """The plugin's OpenVINO CPU devices, the library registered with onnxruntime once per process."""
+    if OPENVINO_EP_PLUGIN not in _registered_plugins:
+        ort.register_execution_provider_library(OPENVINO_EP_PLUGIN, plugin.get_library_path())
+        _registered_plugins.add(OPENVINO_EP_PLUGIN)
+    return [d for d in ort.get_ep_devices()
+            if d.ep_name == plugin.get_ep_name() and d.ep_metadata.get("ov_device") == "CPU"]
+
+
 def load_model(path, runtime: str = "onnxruntime", threads: int | None = None):
-    """An `OnnxModel` (``runtime="onnxruntime"``) or `OpenVinoModel` (``"openvino"``) of ``path``."""
+    """An `OnnxModel` (``runtime="onnxruntime"``: its CPU provider; ``"onnxruntime-openvino"``: its OpenVINO
+    provider, `openvino_ep_session`) or `OpenVinoModel` (``"openvino"``) of ``path``."""
     if runtime == "onnxruntime":
         return OnnxModel(path, threads=threads)
     if runtime == "openvino":
         return OpenVinoModel(path, threads=threads)
-    from .errors import ConfigError
-
+    if runtime == "onnxruntime-openvino":
+        try:
+            return OnnxModel(path, threads=threads, **openvino_ep_session(threads))
+        except InvalidModelError as exc:
+            if "fallback to CPU EP" not in str(exc):
+                raise
+            raise InvalidModelError(f"{path}: onnxruntime's OpenVINO provider cannot run every node of this graph "
+                                    "(it would leave some to onnxruntime's CPU provider)") from None
     raise ConfigError(f"runtime must be one of {', '.join(RUNTIMES)}, got {runtime!r}")

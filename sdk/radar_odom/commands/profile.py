@@ -10,6 +10,7 @@ def register(subparsers) -> None:
     import argparse
 
     from ..latency.columns import help_text
+    from ..runtimes import RUNTIMES
 
     class Formatter(help_formatter(), argparse.RawDescriptionHelpFormatter):
         pass
@@ -42,9 +43,11 @@ def register(subparsers) -> None:
     p.add_argument(
         "--threads", type=threads_arg, default=None, help="onnxruntime threads (default: physical cores)%(default).0s"
     )
-    p.add_argument("--runtime", choices=("onnxruntime", "openvino"), default="onnxruntime",
-                   help="runtime the stream steps run on (openvino: its own runtime, radar_odom.runtimes; the "
-                        "operator table and the file throughput stay onnxruntime's and are left out)")
+    p.add_argument("--runtime", choices=RUNTIMES, default="onnxruntime",
+                   help="runtime the stream steps run on (radar_odom.runtimes; openvino: its own runtime; "
+                        "onnxruntime-openvino: onnxruntime's OpenVINO provider, from the onnxruntime-openvino wheel "
+                        "in its own environment or the onnxruntime-ep-openvino plugin on Intel CPUs; the operator "
+                        "table and the file throughput stay onnxruntime CPU's and are left out)")
     p.add_argument("--steps", type=int, default=200, help="timed stream steps per model")
     p.add_argument("--warmup", type=int, default=20, help="untimed steps first")
     p.add_argument(

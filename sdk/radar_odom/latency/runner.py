@@ -43,7 +43,7 @@ def run_profile(
     """Profile every model (see `resolve_models`), write ``profile.json`` and ``profile.md`` in
     ``out_dir`` (and onnxruntime's traces only with ``keep_traces``), and return the report
     dictionary. Every phase says when it starts and at least every `PROGRESS_EVERY_S` while it runs.
-    ``runtime``: onnxruntime or openvino (`radar_odom.runtimes`: the stream steps and the numpy
+    ``runtime``: one of `radar_odom.runtimes.RUNTIMES` (the stream steps and the numpy
     reference; operators and file throughput are onnxruntime's only)."""
     from .._progress import heartbeat
     from ..errors import ConfigError

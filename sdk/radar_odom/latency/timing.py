@@ -44,7 +44,7 @@ def profile_model(model_path, pngs: list[bytes], *, steps: int = 200, warmup: in
     """Time every stage of ``steps`` stream steps of one model (see the module docstring); ``echo``
     (e.g. print) says when each later phase starts and, every ``every_s`` seconds, that it still runs.
     onnxruntime's trace is kept in ``trace_dir`` only when one is given (tens of MB).
-    ``runtime``: ``"onnxruntime"`` or ``"openvino"`` (`radar_odom.runtimes`; its operators are not traced).
+    ``runtime``: one of `radar_odom.runtimes.RUNTIMES` (operators are traced on ``"onnxruntime"`` alone).
     A sweep-form model's *polar→Cartesian* stage is only its feeds' preparation: its graph draws the image."""
     say = echo or (lambda text: None)
     from .._progress import heartbeat, progress
