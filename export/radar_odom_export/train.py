@@ -58,11 +58,13 @@ from radar_odom.profiles import GridProfile
 
 from .checkpoint import CheckpointError, provenance_command, save_checkpoint
 from .data import NO_AUGMENT, Augment, DataSpecError, Drive, PairDataset
+from .distil import MASK_LOSS_TEXT, mask_loss
 
 STATE_FORMAT = "radar-odom-train-state/1"
 TRAINING_FREE = ("raw", "cfar")  # maskings with no weights: `train` only describes them
 POSE_LOSSES = ("mse", "ce", "ce+mse")
 TRAIN_SEARCHES = ("exhaustive", "decoupled")
+DEFAULT_PROFILE = "cart-0.8"  # `radar-odom train --profile` when none is given (and no --distill-from)
 _MSE_TEXT = "mean[((dx^2+dy^2)/res^2) + yaw_weight*(dyaw/rotation_step)^2] (grid cells^2)"
 _CE_TEXT = "cross-entropy of softmax(beta_pose*C) against the trilinear gt target"
 
@@ -91,6 +93,8 @@ class TrainConfig:
     resume: bool = False
     init_from: str | None = None  # start from another checkpoint's weights (same U-Net shape)
     symmetric_masker: bool = False  # masker kernels kept left/right symmetric (`symmetry.constrain_left_right_`)
+    distill_from: str | None = None  # a teacher checkpoint: train the masker to its mirror-averaged masks (`distil`)
+    distill_pose_weight: float = 0.0  # with distill_from: weight of the pose cross-entropy added to the mask MSE
     steps_per_epoch: int | None = None  # cap (None: a full pass over the training pairs)
     real_fraction: float = 0.25  # share of real pairs in the training set when real drives are given
     real_max_skip: int = 4  # real pairs (k, k + s) for s = 1 … this (`real_pairs.SkipPairs`)
@@ -100,6 +104,8 @@ class TrainConfig:
     def objective(self) -> str:
         if self.masking in TRAINING_FREE:
             return self.masking
+        if self.distill_from:
+            return "distil"
         return "masks" if self.supervised_masks else "pose"
 
 
@@ -236,6 +242,48 @@ class Objective(nn.Module):
             return mse, mse
         ce = pose_cross_entropy(volume, batch["pose"], self.model.profile)
         return (ce if self.pose_loss_kind == "ce" else ce + mse), mse
+
+
+class DistilObjective(nn.Module):
+    """The distillation loss (`distil`, ``radar-odom train --distill-from``) with `Objective`'s interface:
+    ``forward(batch)`` → ``(loss, pose_mse)``. ``model`` is the student (trained); the teacher is frozen
+    and not among the optimiser's parameters. ``pose_mse`` (grid cells², `pose_loss`) is computed in eval
+    mode (validation) and whenever ``pose_weight`` > 0; None otherwise, so a pure mask step never builds
+    the correlation volume."""
+
+    def __init__(self, model: nn.Module, teacher: nn.Module, pose_weight: float = 0.0, yaw_weight: float = 1.0):
+        super().__init__()
+        if pose_weight < 0:
+            raise ValueError(f"pose_weight {pose_weight}: give a weight ≥ 0")
+        self.model = model
+        self.teacher = teacher
+        self.pose_weight = pose_weight
+        self.yaw_weight = yaw_weight
+        self.objective = "distil"
+
+    def train(self, mode: bool = True):
+        super().train(mode)
+        self.teacher.eval()  # frozen whatever the student does
+        return self
+
+    def forward(self, batch: dict):
+        student = self.model
+        prev, cur = batch["prev"], batch["cur"]
+        if self.pose_weight == 0 and self.training:
+            # masks alone: one sweep of each pair is enough (a drive's every sweep is some pair's first,
+            # and the swap augmentation picks either), which halves the step
+            return mask_loss(student, self.teacher, student.normalise(prev))[0], None
+        z = student.normalise(torch.cat([prev, cur]))  # both sweeps of the pair as one batch
+        loss, masks = mask_loss(student, self.teacher, z)
+        n = len(prev)
+        s_prev, s_cur = student._to_features(z[:n], masks[:n]), student._to_features(z[n:], masks[n:])
+        corr = student.correlation
+        volume = corr.correlate(corr.spectrum(s_prev), corr.spectrum(student.rotator(s_cur)))
+        pose, _ = student.pose_from_volume(volume)
+        mse = pose_loss(pose, batch["pose"], student.profile, self.yaw_weight)
+        if self.pose_weight > 0:
+            loss = loss + self.pose_weight * pose_cross_entropy(volume, batch["pose"], student.profile)
+        return loss, mse
 
 
 # ----------------------------------------------------------------------------- distributed
@@ -381,9 +429,12 @@ def _config_record(cfg: TrainConfig) -> dict:
         "seed": cfg.seed,
         "steps_per_epoch": cfg.steps_per_epoch,
         "symmetric_masker": cfg.symmetric_masker,
+        "distill_pose_weight": cfg.distill_pose_weight,
         "loss": {
             "pose": {"mse": _MSE_TEXT, "ce": _CE_TEXT, "ce+mse": f"{_CE_TEXT} + {_MSE_TEXT}"}[cfg.pose_loss],
             "masks": "BCE(mask, static label)",
+            "distil": MASK_LOSS_TEXT
+            + (f" + {cfg.distill_pose_weight:g} * {_CE_TEXT}" if cfg.distill_pose_weight else ""),
             "raw": "none",
             "cfar": "none",
         }[cfg.objective],
@@ -428,8 +479,19 @@ def train(
         train_set = MixedPairs(train_set, real_set, cfg.real_fraction, cfg.seed)
     val_set = PairDataset(val_drives, augment=NO_AUGMENT, with_labels=with_labels, seed=cfg.seed)
     model = MaskedCorrelator(cfg.profile, masking=cfg.masking, dft="fft").to(d.device)
-    objective = Objective(model, cfg.objective, cfg.yaw_weight, cfg.pose_loss, cfg.search)
     record = _config_record(cfg)
+    if cfg.objective == "distil":
+        from .distil import check_student, load_teacher
+
+        if with_labels or cfg.search != "exhaustive":
+            raise DataSpecError("--distill-from trains on the teacher's masks: it cannot be combined with "
+                                "--supervised-masks or --search")
+        teacher = load_teacher(cfg.distill_from, d.device)
+        check_student(cfg.profile, teacher.profile)
+        objective = DistilObjective(model, teacher, cfg.distill_pose_weight, cfg.yaw_weight)
+        record["distill_from"] = Path(cfg.distill_from).name  # no build-machine paths in a checkpoint
+    else:
+        objective = Objective(model, cfg.objective, cfg.yaw_weight, cfg.pose_loss, cfg.search)
     record.update(
         world_size=d.world,
         threads_per_rank=threads,
@@ -560,7 +622,7 @@ def train(
         bar.close()
         stats = validation_stats(objective, val_set, cfg.batch, d)
         # pose models are selected by pose error (cells²) whatever loss trained them
-        val = stats["loss"] if cfg.objective == "masks" else stats["pose_mse"]
+        val = stats["loss"] if cfg.objective in ("masks", "distil") else stats["pose_mse"]
         tr = d.sum([total, count])
         wall = wall_before + time.perf_counter() - t_start
         history.append(
@@ -736,6 +798,10 @@ def final_line(output, summary: dict, profile: GridProfile, budget_minutes: floa
     cell = (f"1 cell = {profile.resolution_m:g} m in x and y, {math.degrees(profile.rotation_step_rad):g}° in yaw")
     if objective == "masks":
         what = f"best validation loss {best:.4g} (mask BCE against the static labels; epoch {epoch})"
+    elif objective == "distil":
+        what = (f"best validation loss {best:.4g} (mask MSE against the teacher's mirror-averaged masks"
+                + (", plus the weighted pose cross-entropy" if summary.get("distill_pose_weight") else "")
+                + f"; epoch {epoch})")
     elif objective in TRAINING_FREE:
         what = (f"validation pose error {best:.4g} cells² (mean squared pose error in grid cells, {cell}); "
                 f"nothing trained ({objective} masking)")
@@ -784,6 +850,19 @@ def resolve_profile(
     return profile
 
 
+def distil_profile(teacher, profile_name: str | None, base_channels: int | None, depth: int | None) -> GridProfile:
+    """The student's profile for ``--distill-from``: the teacher checkpoint's (so grid, band limits and
+    read-out are the shipped model's) with the U-Net overrides; ``--profile``, if given, must name it."""
+    from .checkpoint import read_checkpoint_dict, resolve_checkpoint
+    from .distil import student_profile
+
+    teacher_profile = GridProfile.from_dict(read_checkpoint_dict(resolve_checkpoint(teacher))["profile"])
+    if profile_name and profile_name != teacher_profile.name:
+        raise DataSpecError(f"--profile {profile_name}: --distill-from {teacher} has profile "
+                            f"{teacher_profile.name!r}; the student takes the teacher's (leave out --profile)")
+    return student_profile(teacher_profile, base_channels, depth)
+
+
 def _sim_version() -> int:
     from radar_odom.sim import SIMULATOR_VERSION
 
@@ -811,9 +890,16 @@ def run_from_args(args) -> dict:
     try:
         if d.main:
             print(budget_line(minutes, resume=args.resume), flush=True)
-        profile = resolve_profile(
-            args.profile, args.unet_base_channels, args.unet_depth, getattr(args, "beta_pose", None)
-        )
+        teacher = getattr(args, "distill_from", None)
+        if not (getattr(args, "distill_pose_weight", 0.0) or 0.0) >= 0:
+            raise DataSpecError(f"--distill-pose-weight {args.distill_pose_weight}: give a weight ≥ 0")
+        if teacher:
+            profile = distil_profile(teacher, args.profile, args.unet_base_channels, args.unet_depth)
+        else:
+            profile = resolve_profile(
+                args.profile or DEFAULT_PROFILE, args.unet_base_channels, args.unet_depth,
+                getattr(args, "beta_pose", None),
+            )
         if args.masking == "cfar" and profile.input_norm == "none":  # said before any data is built
             raise DataSpecError(
                 f"--masking cfar needs a profile with input_norm 'floor-scale' (its thresholds "
@@ -887,6 +973,8 @@ def run_from_args(args) -> dict:
             resume=args.resume,
             init_from=getattr(args, "init_from", None),
             symmetric_masker=getattr(args, "symmetric_masker", False),
+            distill_from=teacher,
+            distill_pose_weight=getattr(args, "distill_pose_weight", 0.0) or 0.0,
             steps_per_epoch=args.steps_per_epoch,
             real_fraction=getattr(args, "real_fraction", 0.25),
             info=info,
@@ -902,6 +990,9 @@ def run_from_args(args) -> dict:
         summary = train(cfg, train_drives, val_drives, d, real_drives=real)
         if d.main:
             print(final_line(cfg.output, summary, profile, budget_minutes=cfg.minutes))
+        # every rank reaches the end before the process group goes: a rank that tore gloo down while
+        # rank 0 still wrote its checkpoint aborted now and then ("terminate called without an active exception")
+        d.barrier()
         return summary
     finally:
         shutdown_distributed(d)

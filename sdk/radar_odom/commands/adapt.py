@@ -98,6 +98,7 @@ def run(args) -> int:
         with cli_warnings("adapt"):
             report = adapt(args.recordings, out, cfg, topic=args.topic, sweeps=parse_sweeps(args.sweeps),
                            labeller=labeller, dist=d)
+        d.barrier()  # every rank at the end before the group goes (as train: a rank leaving early could abort)
     finally:
         shutdown_distributed(d)
     if report is None:  # a rank other than 0: it trained its shard, rank 0 writes and reports

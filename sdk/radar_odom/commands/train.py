@@ -33,9 +33,9 @@ def register(subparsers) -> None:
     p.add_argument("data", nargs="*", metavar="DATA", help="recording folders with ground truth (none: simulate)")
     p.add_argument("-o", "--output", required=True, help="checkpoint to write (.pt)")
     g = p.add_argument_group("model")
-    g.add_argument("--profile", default="cart-0.8",
+    g.add_argument("--profile", default=None,
                    help="grid profile name (cart-0.8, cart-0.4, cart-0.2, ...) or a JSON file of GridProfile "
-                        "fields (default: %(default)s)")
+                        "fields (default: cart-0.8; with --distill-from: the teacher's)")
     g.add_argument("--masking", choices=("learned", "raw", "cfar"), default="learned",
                    help="learned: train the U-Net; raw: mask = 1, the raw-scan baseline, nothing trained; "
                         "cfar: a classical CFAR mask on the normalised sweep (profile fields cfar_window_m, "
@@ -154,6 +154,19 @@ def register(subparsers) -> None:
         "column flip), so the masker, and with it the graph, is mirror-equivariant: no yaw from a handed "
         "masker on straight roads (docs/yaw-precision.md); the checkpoint holds plain symmetric weights",
     )
+    g.add_argument(
+        "--distill-from",
+        default=None,
+        metavar="CKPT",
+        help="distil: train this model's masker (e.g. a narrower one: --unet-base-channels 4) to reproduce the "
+        "frozen CKPT's masks (a shipped name such as cart-0.4, or a file), each target averaged with the mirror "
+        "image of the teacher's masks of the mirrored sweep so that the student is not left/right handed; loss: "
+        "the masks' mean squared difference; the profile is the teacher's but for the U-Net size; calibrate "
+        "the result before exporting (docs/training.md, 'A narrower masker, distilled')",
+    )
+    g.add_argument("--distill-pose-weight", type=float, default=0.0, metavar="W",
+                   help="with --distill-from: add W × the pose cross-entropy of the student's correlation volume "
+                        "to the mask loss (default: %(default)s, masks alone)")
     p.set_defaults(func=run)
 
 
