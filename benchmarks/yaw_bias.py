@@ -3,6 +3,7 @@ split by what each variant of the sweeps keeps or takes away.
 
     python benchmarks/yaw_bias.py                                     # cart-0.4, 4 fresh seeds × 28 sweeps; ≈ 3 min
     python benchmarks/yaw_bias.py --models cart-0.4,cart-0.8 --write /tmp/yawfix   # export the fix (below)
+    python benchmarks/yaw_bias.py --models cart-0.4 --fix average --write /tmp/mirror   # the masks averaged
     python benchmarks/yaw_bias.py --models cart-0.4,/tmp/prev/cart-0.4.onnx --seeds 20000,20001
 
 Every row is the mean (estimated − true) yaw per sweep, ° ± its standard error over the pairs, of the
@@ -40,10 +41,12 @@ and read at the parabola through the best translation score of each (`yaw_kernel
 ``bend``: what a fix must not cost: the yaw error and yaw slope on a steady ``--bend`` (°/sweep).
 
 ``--write DIR``: the fix, built: the shipped checkpoints (``--models``' names) with a left/right
-symmetric masker (`radar_odom_export.symmetry`), written as DIR/NAME.pt and exported as DIR/NAME.onnx
-(`radar-odom export DIR/NAME.pt --search fast`, the shipped files' search; the calibration is the
-shipped checkpoint's). Then measure them with ``--models DIR/NAME.onnx`` or the scorecard's
-``--candidate-dir DIR``. Needs the export extra (torch, onnx).
+symmetric masker (``--fix symmetric``: every kernel averaged with its mirror image) or with their masks
+averaged over the mirror (``--fix average``: `GridProfile.mask_mirror_average`, the weights as shipped;
+`radar_odom_export.symmetry`), written as DIR/NAME.pt and exported as DIR/NAME.onnx with the shipped
+file's search and its settings (the calibration is the shipped checkpoint's). ``--export DIR`` exports
+DIR/NAME.pt again the same way, e.g. after ``radar-odom calibrate DIR/NAME.pt``. Then measure them with
+``--models DIR/NAME.onnx`` or the scorecard's ``--candidate-dir DIR``. Needs the export extra (torch, onnx).
 """
 from __future__ import annotations
 
@@ -220,21 +223,35 @@ def part_world(models: dict, seeds, frames: int) -> None:
               f"motion distortion (moving − frozen) {mean_se_deg(errs[name, 'moving'])[0] - b:+.4f}")
 
 
-def write_fixed(names, out_dir: Path) -> None:
-    """DIR/NAME.pt (the shipped checkpoint, masker made left/right symmetric) and DIR/NAME.onnx."""
-    import subprocess
+FIXES = ("symmetric", "average")  # --fix: the kernels averaged with their mirror images, or the masks
 
+
+def write_fixed(names, out_dir: Path, fix: str = "symmetric") -> None:
+    """DIR/NAME.pt (the shipped checkpoint, its masker made left/right symmetric: ``fix`` "symmetric",
+    `symmetry.mirror_symmetric_checkpoint`; or its masks averaged over the mirror: "average",
+    `symmetry.mirror_averaged_checkpoint`) and DIR/NAME.onnx (`export_like_shipped`)."""
     from radar_odom_export.checkpoint import read_checkpoint_dict, resolve_checkpoint, write_checkpoint_dict
-    from radar_odom_export.symmetry import mirror_symmetric_checkpoint
+    from radar_odom_export.symmetry import mirror_averaged_checkpoint, mirror_symmetric_checkpoint
 
+    make = mirror_symmetric_checkpoint if fix == "symmetric" else mirror_averaged_checkpoint
     out_dir.mkdir(parents=True, exist_ok=True)
     for name in names:
-        pt = write_checkpoint_dict(out_dir / f"{name}.pt", mirror_symmetric_checkpoint(
-            read_checkpoint_dict(resolve_checkpoint(name))))
-        onnx = out_dir / f"{name}.onnx"
-        cmd = [sys.executable, "-m", "radar_odom", "export", str(pt), "-o", str(onnx), "--search", "fast", "--force"]
-        subprocess.run(cmd, check=True)
-        print(f"wrote {pt} and {onnx}", flush=True)
+        write_checkpoint_dict(out_dir / f"{name}.pt", make(read_checkpoint_dict(resolve_checkpoint(name))))
+    export_like_shipped(names, out_dir)
+
+
+def export_like_shipped(names, out_dir: Path) -> None:
+    """DIR/NAME.pt exported to DIR/NAME.onnx as the shipped NAME.onnx is: its search with the settings its
+    metadata records (`model_zoo.shipped_export`), so the candidate keeps the shipped search even where
+    `fast_search.DEFAULT_SETTINGS` (what ``radar-odom export DIR/NAME.pt --search fast`` takes) changes later."""
+    from radar_odom.model_zoo import shipped_export
+    from radar_odom_export.onnx_export import export_checkpoint
+
+    for name in names:
+        how = shipped_export(name)
+        report = export_checkpoint(out_dir / f"{name}.pt", out_dir / f"{name}.onnx", form=how["form"],
+                                   search=how["search"], search_settings=how["settings"])
+        print(report.summary(), flush=True)
 
 
 def part_stages(name: str, seeds, frames: int) -> None:
@@ -323,10 +340,19 @@ def main(argv=None) -> int:
     ap.add_argument("--bend", type=float, default=0.5, help="the bend part's rate, ° per sweep (default: %(default)s)")
     ap.add_argument("--threads", type=int, default=1, help="onnxruntime threads (default: %(default)s)")
     ap.add_argument("--write", type=Path, default=None, metavar="DIR",
-                    help="write the fix (mirror-symmetric masker) of the named shipped models to DIR and exit")
+                    help="write the fix (--fix) of the named shipped models to DIR and exit")
+    ap.add_argument("--fix", choices=FIXES, default="symmetric",
+                    help="--write's fix: symmetric: every masker kernel averaged with its mirror image; average: the "
+                         "masks averaged over the mirror (GridProfile.mask_mirror_average) (default: %(default)s)")
+    ap.add_argument("--export", type=Path, default=None, metavar="DIR",
+                    help="export DIR/NAME.pt (e.g. after `radar-odom calibrate`) to DIR/NAME.onnx as the shipped "
+                         "NAME.onnx is (its search settings) and exit")
     args = ap.parse_args(argv)
     if args.write is not None:
-        write_fixed(args.models.split(","), args.write)
+        write_fixed(args.models.split(","), args.write, args.fix)
+        return 0
+    if args.export is not None:
+        export_like_shipped(args.models.split(","), args.export)
         return 0
     seeds = [int(s) for s in args.seeds.split(",")]
     SCENARIO[0] = args.scenario

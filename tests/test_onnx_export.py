@@ -504,3 +504,54 @@ def test_openvino_gives_the_same_outputs(exports):
     got = compiled(feeds)
     for name in ("pose", "covariance", "state"):
         np.testing.assert_allclose(got[compiled.output(name)], want[name], atol=1e-4, rtol=1e-4, err_msg=name)
+
+
+
+def handed_model(profile):
+    """`seeded_model` with every 3×3 kernel's left column raised: a masker whose masks of a scene and
+    of its mirror image differ clearly (masks up to 0.05 apart on `scene_frames`)."""
+    model = seeded_model(profile)
+    with torch.no_grad():
+        for layer in model.masker.modules():
+            if isinstance(layer, nn.Conv2d) and layer.kernel_size[-1] == 3:
+                layer.weight[..., 0] += 0.05
+    return model
+
+
+@pytest.mark.torch
+def test_a_mirror_averaged_masker_exports_and_reads_a_mirrored_scene_mirrored(tmp_path):
+    """``GridProfile.mask_mirror_average``: the U-Net runs on the sweep and its mirror image as one
+    batch (one Conv node per layer, as without it) and the masks are averaged over the mirror. The
+    file matches torch, and a scene whose columns are reversed reads (x, −y, −yaw) through the file,
+    where the same handed masker without the average reads it millimetres off."""
+    profile = TINY.with_(name="tiny-mirror", mask_downsample=2, mask_mirror_average=True)
+    frames = scene_frames(steps=3)[:, None]
+    mirrored = np.ascontiguousarray(frames[..., ::-1])
+    flip = np.array([1.0, -1.0, -1.0])
+    with torch.no_grad():  # the masker is handed: without the average the mirrored pair reads otherwise
+        plain = handed_model(profile.with_(mask_mirror_average=False))
+        a, b = (plain(torch.from_numpy(f[0]), torch.from_numpy(f[1]))[0][0].numpy() for f in (frames, mirrored))
+    assert np.abs(a - b * flip)[:2].max() > 1e-3
+    model = handed_model(profile)
+    path = tmp_path / "mirror.onnx"
+    report = export_model(model, path, verify=True)
+    assert report.max_pose_diff < 1e-4
+    assert report.ops["Conv"] == sum(isinstance(layer, nn.Conv2d) for layer in model.masker.modules())
+    m = OnnxModel(path)
+    assert m.info.profile.mask_mirror_average
+
+    def poses(seq):
+        state = m.run({"cart": seq[0], "prev_state": np.zeros(m.info.state_shape, np.float32)})["state"]
+        out = []
+        for f in seq[1:]:
+            r = m.run({"cart": f, "prev_state": state})
+            state = r["state"]
+            out.append(r["pose"][0])
+        return np.array(out)
+
+    a, b = poses(frames), poses(mirrored)
+    for k in range(1, len(frames)):
+        with torch.no_grad():
+            ref, _ = model(torch.from_numpy(frames[k - 1]), torch.from_numpy(frames[k]))
+        np.testing.assert_allclose(a[k - 1], ref[0].numpy(), atol=2e-5)
+    np.testing.assert_allclose(b * flip, a, atol=1e-5)

@@ -38,6 +38,17 @@ def test_files_made_before_rotation_identity_read_as_exact():
     assert GridProfile.from_metadata(p.to_metadata()).rotation_identity == "resampled"
 
 
+def test_the_mirror_average_is_written_only_when_on_and_needs_a_cartesian_input():
+    """`GridProfile.mask_mirror_average`: files without the key read False (the masker as it always
+    ran) and write the same text as before the field existed; True round-trips through the metadata."""
+    p = get_profile("cart-0.4")
+    assert not p.mask_mirror_average and "mask_mirror_average" not in p.to_metadata()["radar_odom.profile"]
+    q = p.with_(mask_mirror_average=True)
+    assert GridProfile.from_metadata(q.to_metadata()) == q and q != p
+    with pytest.raises(ValueError, match="mask_mirror_average"):
+        get_profile("polar-0.4").with_(mask_mirror_average=True)
+
+
 def test_bad_profiles_are_rejected():
     with pytest.raises(ValueError, match="rotation_identity"):
         GridProfile("x", resolution_m=1.0, width_px=32, rotation_identity="nearest")

@@ -82,13 +82,15 @@ def test_the_mirrored_world_mirrors_the_drive():
 
 
 # ------------------------------------------------------------------ torch: where the handedness lives
-def _step(torch, masking: str, symmetric: bool = False):
+def _step(torch, masking: str, symmetric: bool = False, mirror_average: bool = False):
     from radar_odom_export.checkpoint import model_from_dict, read_checkpoint_dict, resolve_checkpoint
     from radar_odom_export.fast_search import FastStreamStep
     from radar_odom_export.model import MaskedCorrelator
-    from radar_odom_export.symmetry import mirror_symmetric_checkpoint
+    from radar_odom_export.symmetry import mirror_averaged_checkpoint, mirror_symmetric_checkpoint
 
     ckpt = read_checkpoint_dict(resolve_checkpoint("cart-0.4"))
+    if mirror_average:
+        ckpt = mirror_averaged_checkpoint(ckpt)
     if masking == "learned":
         model = model_from_dict(mirror_symmetric_checkpoint(ckpt) if symmetric else ckpt)
     else:  # the shipped profile (cubic rotation, high-pass 12 px), mask ≡ 1
@@ -149,6 +151,53 @@ def test_the_shipped_masker_is_handed_and_a_symmetric_one_is_not(frozen_frames):
         m = sym_step.model.mask(x)
         m_mirror = sym_step.model.mask(x.flip(-1))
     torch.testing.assert_close(m_mirror, m.flip(-1), atol=1e-4, rtol=0)  # float32 noise: ~1e-5
+
+
+@pytest.mark.torch
+@pytest.mark.slow
+def test_the_shipped_masker_averaged_over_the_mirror_is_mirror_equivariant(frozen_frames):
+    """`GridProfile.mask_mirror_average` on the shipped cart-0.4, weights as shipped: the masks are
+    (M(x) + flip(M(flip(x)))) / 2, so they commute with the mirror and a reflected pair reads
+    (x, −y, −yaw) to float precision, as with the mask ≡ 1 — where the same weights without the
+    average are handed (`test_the_shipped_masker_is_handed_and_a_symmetric_one_is_not`)."""
+    torch = pytest.importorskip("torch")
+    step = _step(torch, "learned", mirror_average=True)
+    assert step.profile.mask_mirror_average
+    sums = _mirror_sums(torch, step, frozen_frames[:2])  # one pair: the shipped weights are handed on each
+    np.testing.assert_allclose(sums[:, 2], 0.0, atol=1e-5)
+    np.testing.assert_allclose(sums[:, :2], 0.0, atol=1e-3)
+    info = OnnxModel(radar_odom.pretrained("cart-0.4"), threads=1).info
+    x = torch.from_numpy(graph_input(frozen_frames[0].scan, info))
+    with torch.no_grad():
+        m, m_mirror = step.model.mask(x), step.model.mask(x.flip(-1))
+    torch.testing.assert_close(m_mirror, m.flip(-1), atol=1e-4, rtol=0)  # float32 noise: ~2e-5
+
+
+@pytest.mark.torch
+def test_without_the_mirror_average_the_shipped_masker_runs_as_it_did():
+    """The flag off (the shipped profile, and every file made before the field): the profile text, and
+    so the shipped file's digest, is what it was, and the masks are the U-Net's own, bit for bit; the
+    checkpoint with the flag differs only there, and its masks are the mirror average."""
+    torch = pytest.importorskip("torch")
+    from radar_odom.model_file import profile_digest
+    from radar_odom_export.checkpoint import model_from_dict, read_checkpoint_dict, resolve_checkpoint
+    from radar_odom_export.symmetry import mirror_averaged_checkpoint
+
+    shipped = OnnxModel(radar_odom.pretrained("cart-0.4"), threads=1)
+    text = shipped.info.profile.to_metadata()["radar_odom.profile"]
+    assert not shipped.info.profile.mask_mirror_average and "mask_mirror_average" not in text
+    assert profile_digest(text) == shipped.session.get_modelmeta().custom_metadata_map["radar_odom.profile_sha256"]
+    ckpt = read_checkpoint_dict(resolve_checkpoint("cart-0.4"))
+    averaged = mirror_averaged_checkpoint(ckpt)
+    assert {k for k in ckpt["profile"] if ckpt["profile"][k] != averaged["profile"].get(k)} == set()
+    assert set(averaged["profile"]) - set(ckpt["profile"]) == {"mask_mirror_average"}
+    model, avg_model = model_from_dict(ckpt), model_from_dict(averaged)
+    x = torch.rand(1, 1, 128, 128) ** 4  # a 0.4 m/px sweep pooled 2x, as the masker sees it
+    with torch.no_grad():
+        assert torch.equal(model._unet_mask(x), model.masker(x))
+        torch.testing.assert_close(avg_model._unet_mask(x), 0.5 * (model.masker(x) + model.masker(x.flip(-1)).flip(-1)))
+    with pytest.raises(ValueError, match="only a learned masker"):
+        mirror_averaged_checkpoint({**ckpt, "masking": "raw"})
 
 
 @pytest.mark.torch

@@ -215,6 +215,16 @@ def support_disc(width_px: int, translation_cells: int) -> torch.Tensor:
     return (r2 <= radius**2).to(torch.float32)
 
 
+def mirror_averaged(masks_of, z: torch.Tensor) -> torch.Tensor:
+    """(f(z) + flip(f(flip(z)))) / 2 for ``masks_of`` = f mapping images [B, ..., W] to masks [B, ..., W]
+    (flip: the last axis, the columns, y → −y): masks that commute with the left/right mirror whatever
+    f's handedness. z and its mirror image go through f as one batch of 2B (one call per layer, also in
+    the exported graph). `MaskedCorrelator` with ``profile.mask_mirror_average``; distillation's target."""
+    b = z.shape[0]
+    m = masks_of(torch.cat([z, z.flip(-1)], dim=0))
+    return 0.5 * (m[:b] + m[b:].flip(-1))
+
+
 class MaskedCorrelator(nn.Module):
     """The paper's model for one `GridProfile`; see the module docstring for the options.
 
@@ -276,12 +286,21 @@ class MaskedCorrelator(nn.Module):
         z = z if self.dual else z.unsqueeze(1)
         f = self.profile.mask_downsample if self.to_cartesian is None else 1
         if f > 1:  # mask on a coarser grid (see GridProfile.mask_downsample)
-            m = self.masker(nn.functional.avg_pool2d(z, f))
+            m = self._unet_mask(nn.functional.avg_pool2d(z, f))
             m = nn.functional.interpolate(m, scale_factor=float(f), mode="bilinear",
                                           align_corners=False)
         else:
-            m = self.masker(z)
+            m = self._unet_mask(z)
         return m if self.dual else m.squeeze(1)
+
+    def _unet_mask(self, z: torch.Tensor) -> torch.Tensor:
+        """The U-Net's masks of z [B, C, H, W]; with ``profile.mask_mirror_average`` the mean of the
+        mask and the mirrored mask of the mirror image, (M(z) + flip(M(flip(z)))) / 2 (flip: the
+        columns, y → −y), so the masks commute with the mirror whatever the kernels' handedness.
+        The 2x pooling and bilinear upsampling around it commute with the flip on even sizes."""
+        if not self.profile.mask_mirror_average:
+            return self.masker(z)
+        return mirror_averaged(self.masker, z)
 
     def _to_features(self, z: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """``S = M ⊙ Z`` as a Cartesian image float[B, W, W] (polar: masked, then mapped), from

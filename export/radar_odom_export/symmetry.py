@@ -80,3 +80,22 @@ def mirror_symmetric_checkpoint(ckpt: dict) -> dict:
     train = dict(ckpt.get("train") or {})
     train["masker_symmetry"] = "left-right: every kernel averaged with its column flip (issue 41)"
     return {**ckpt, "state_dict": state, "train": train}
+
+
+def mirror_averaged_checkpoint(ckpt: dict) -> dict:
+    """A checkpoint dictionary whose masker's output is averaged over the left/right mirror
+    (``profile["mask_mirror_average"] = True``: (M(x) + flip(M(flip(x)))) / 2, `MaskedCorrelator`):
+    the graph becomes mirror-equivariant with the weights as they are (unlike `mirror_symmetric_checkpoint`,
+    which averages the kernels and loses their antisymmetric part). Weights and calibration unchanged,
+    ``train["masker_symmetry"]`` says what was done; the masks change scale, so recalibrate before
+    shipping. Raises ValueError for a model without a learned masker."""
+    from radar_odom.profiles import GridProfile
+
+    if ckpt.get("masking") != "learned":
+        raise ValueError(f"masking={ckpt.get('masking')!r}: only a learned masker can be handed; "
+                         "raw and CFAR masks are mirror-symmetric already")
+    profile = {**ckpt["profile"], "mask_mirror_average": True}
+    GridProfile.from_dict(profile)  # refuses a profile the average does not apply to (polar input)
+    train = dict(ckpt.get("train") or {})
+    train["masker_symmetry"] = "left-right: the mask averaged with the mirrored mask of the mirror image (issue 41)"
+    return {**ckpt, "profile": profile, "train": train}

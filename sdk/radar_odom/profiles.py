@@ -34,7 +34,8 @@ ROTATION_KERNELS = ("bilinear", "cubic")
 
 
 # fields a profile writes only when they differ from this value (what files without them mean)
-OPTIONAL_FIELDS = {"feature_highpass_px": 0.0, "feature_blur_px": 0.0, "feature_radial_blur_px": 0.0}
+OPTIONAL_FIELDS = {"feature_highpass_px": 0.0, "feature_blur_px": 0.0, "feature_radial_blur_px": 0.0,
+                   "mask_mirror_average": False}
 
 
 @dataclass(frozen=True)
@@ -56,6 +57,13 @@ class GridProfile:
     # bilinearly: the mask is smooth at the scale of objects (cars, walls), so 0.2 and 0.4 m/px
     # models mask at 0.8 m/px and the U-Net costs the same at every resolution.
     mask_downsample: int = 1
+    # The mask averaged over the left/right mirror (image columns, y → −y): (M(x) + flip(M(flip(x)))) / 2,
+    # x and its mirror image through the U-Net as one batch of two. The search after the masker is
+    # mirror-equivariant already, so with it the whole graph is, with the masker's weights as trained: no
+    # yaw from the U-Net's handedness (the straight-road bias, docs/yaw-precision.md), at twice the
+    # masker's cost. Cartesian input only (a polar sweep's mirror is its azimuths reversed). False in
+    # every file made before this field.
+    mask_mirror_average: bool = False
     # The soft-argmax covariance is a moment of a distribution over grid cells: when β·C puts
     # its weight on one cell it tends to 0, although the true pose is anywhere within that cell.
     # This many cells' uniform quantisation variance, (c·cell)²/12 per axis, is added to it
@@ -143,6 +151,8 @@ class GridProfile:
             raise ValueError(
                 f"profile {self.name!r}: width_px must be divisible by 2**unet_depth × mask_downsample"
             )
+        if self.mask_mirror_average and self.input_kind != "cartesian":
+            raise ValueError(f"profile {self.name!r}: mask_mirror_average needs input_kind='cartesian'")
         if self.pose_estimator not in ("soft-argmax", "parabolic"):
             raise ValueError(f"profile {self.name!r}: pose_estimator must be 'soft-argmax' or 'parabolic'")
         if self.rotation_identity not in ROTATION_IDENTITIES:
