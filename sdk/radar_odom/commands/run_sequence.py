@@ -83,6 +83,7 @@ class RunResult:
     throughput: Throughput | None = None  # the pace: sweeps/s, stage medians (`pipeline.throughput`)
     reference: dict | None = None  # GNSS/INS reference: clock_offset_s, heading_offset_deg, how each was found
     reference_note: str = ""  # one line saying which reference the metrics use (GNSS/INS: its calibration)
+    time_base: object = None  # the recording's `TimeBase` with the sweep times the match decided, or None
     problems: list = field(default_factory=list)  # stages after the odometry that failed (plot, bag, metrics): why
 
     @property
@@ -221,7 +222,9 @@ def _run(seq, seq_dir, model, out_dir, *, threads, max_gap_s, show_progress, plo
     extra = {k: bool(v) for k, v in (("deskew", deskew), ("centre_yaw", centre_yaw)) if v is not None}
     base = getattr(seq, "time_base", None)
     if base is not None and base.period_s is not None:
-        extra["sweep_period_s"] = base.period_s  # the recording's own period: a gap is a missing sweep, not a median
+        # the recording's own period (a gap is a missing sweep, not a median), and the match decides the
+        # whole periods its stamps cannot (`radar_odom.odometry.whole_periods`)
+        extra["time_base"] = base
     odo = model if isinstance(model, RadarOdometer) else RadarOdometer(
         model, threads=threads, max_gap_s=max_gap_s, motion_prior=motion_prior, **extra)
     odo.reset()
@@ -312,6 +315,8 @@ def _write_outputs(odo, seq, seq_dir, out_dir, estimates, prev_ts, skipped, pace
     traj = odo.trajectory
     result = RunResult(traj.poses, traj.timestamps_us, estimates, None,
                        seconds_per_step=pace.wall_s / max(len(traj), 1), skipped=list(skipped), throughput=pace)
+    # the one time base of the run: the reader's, with the whole periods the match decided (the reference's too)
+    result.time_base = odo.time_base if odo.time_base is not None else getattr(seq, "time_base", None)
     result.files["tum"] = write_tum(out_dir / "trajectory.tum", traj.timestamps_us, traj.poses)
     result.files["kitti"] = write_kitti(out_dir / "trajectory.kitti", traj.poses)
     result.files["estimates"] = write_estimates_csv(out_dir / "estimates.csv", estimates, prev_ts)
@@ -327,8 +332,7 @@ def _write_outputs(odo, seq, seq_dir, out_dir, estimates, prev_ts, skipped, pace
             if track is not None:
                 # the reader's time base, where it fitted one: the reference at the very times the odometry used
                 gt, result.reference, result.reference_note = gnss_reference(
-                    track, traj.timestamps_us, traj.poses, *reference_offsets,
-                    time_base=getattr(seq, "time_base", None))
+                    track, traj.timestamps_us, traj.poses, *reference_offsets, time_base=result.time_base)
         except (SequenceError, ConfigError) as exc:  # unreadable or cannot be aligned: say so, no metrics
             result.reference_note = f"reference: GNSS/INS present but not used ({exc})"
             gt = None

@@ -32,6 +32,11 @@ How (`fit_time_base`; every step a pure function below):
 4. The lattice (`fit_lattice_us`): t0 and P by least squares on the on-time stamps (within the
    jitter band), the drift b as a local line through their residuals; steps 3–4 are run
    `FIT_ROUNDS` times, each on the lattice fitted last.
+5. The readings it cannot rule out (`slot_path_costs`, `sweep_alternatives`): for every stamp and
+   slot, the cheapest whole path through it; a slot within `ALTERNATIVE_MARGIN` of the best is
+   listed in `TimeBase.alternatives`. A sweep after a single drop is always one: on time with the
+   drop before it, or a period late with the drop after it (the same stamps). The odometer's match
+   decides (`radar_odom.odometry.whole_periods`, `TimeBase.decided`).
 
 Every sweep's time is then its lattice time: the host's jitter is gone too; stamps off it by more than
 the jitter band (`TimeBase.moved`) are the ones a run reports. Nothing here depends on the sweeps'
@@ -40,7 +45,7 @@ content; the shared RADIATE city drive and the hostile cases are in docs/time-ba
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -61,6 +66,10 @@ EARLY_COST = 2.0  # periods of delay one early stamp is worth (three stamps befo
 DROP_COST = 0.5  # periods of delay one dropped sweep is worth
 FIT_ROUNDS = 3  # slots then lattice: the first lattice is the local phase's, each next the fitted one
 _SLOTS = (-2, -1, 0, 1, 2)  # lattice slots around the nearest one a stamp may take (late ≤ 2.5 P)
+# A slot whose cheapest path costs within this many periods of the fit's is a reading the stamps cannot
+# rule out: one stamp a whole period late with the drop after it costs 1 period more than an on-time stamp
+# with the drop before it (identical stamps), two such stamps 2 more, an early stamp ≥ `EARLY_COST`.
+ALTERNATIVE_MARGIN = 1.25
 
 
 @dataclass(frozen=True)
@@ -79,6 +88,11 @@ class TimeBase:
             by ``period_hint_us`` (`period_from`).
         period_from: "stamps", "hint" (a hint picked a whole fraction of the common interval) or
             "too few stamps".
+        alternatives: ((i, (k_i, k_alt, …)), …) the sweeps whose index the stamps cannot tell (the
+            fitted k first; `sweep_alternatives`): typically a sweep after a drop, whose stamp may
+            instead be a period late with the drop after it. The match decides
+            (`radar_odom.odometry.whole_periods`); `decided` gives the time base it settles on.
+        decided_by_match: indices of the sweeps whose k a match decided (`decided`), in order.
     """
 
     stamps_us: np.ndarray
@@ -88,6 +102,37 @@ class TimeBase:
     tolerance_us: float
     candidate_periods_us: tuple
     period_from: str = "stamps"
+    alternatives: tuple = ()
+    decided_by_match: tuple = ()
+
+    def candidates(self, i: int) -> tuple:
+        """(k_i, k_alt, …) sweep ``i``'s index under each reading the stamps allow (the fit's first)."""
+        for j, ks in self.alternatives:
+            if j == i:
+                return ks
+        return (int(self.sweep_index[i]),)
+
+    def time_at(self, i: int, k: int) -> int:
+        """Sweep ``i``'s time (µs) were its index ``k``: its fitted time moved by whole periods."""
+        return int(self.times_us[i] + round((int(k) - int(self.sweep_index[i])) * self.period_us))
+
+    def decided(self, choices: dict) -> TimeBase:
+        """The time base with ``choices`` ({sweep i: k}, each one of `candidates` (i)) taken: those
+        sweeps' indices and times moved, their alternatives dropped, recorded in `decided_by_match`.
+
+        Raises:
+            SequenceError: a k that is not one of the sweep's candidates, or indices that no longer increase.
+        """
+        k, times = self.sweep_index.copy(), self.times_us.copy()
+        for i, ki in choices.items():
+            if int(ki) not in self.candidates(int(i)):
+                raise SequenceError(f"sweep {i}: index {ki} is none of the stamps' readings {self.candidates(int(i))}")
+            times[int(i)], k[int(i)] = self.time_at(int(i), int(ki)), int(ki)
+        if np.any(np.diff(k) < 1):
+            raise SequenceError("the decided sweep indices do not increase; decide each sweep after the one before it")
+        keep = tuple(a for a in self.alternatives if a[0] not in choices)
+        done = tuple(sorted(set(self.decided_by_match) | {int(i) for i in choices}))
+        return replace(self, times_us=times, sweep_index=k, alternatives=keep, decided_by_match=done)
 
     @property
     def corrections_us(self) -> np.ndarray:
@@ -122,7 +167,7 @@ class TimeBase:
     def summary(self) -> str:
         """One line for a run's notes: the stamps moved (late / early, how far), the sweeps dropped,
         the period and the jitter band; empty where no stamp was moved and none dropped."""
-        if not self.moved.size and not self.dropped:
+        if not self.moved.size and not self.dropped and not self.alternatives:
             return ""
         corr = self.corrections_us
         parts = []
@@ -135,6 +180,12 @@ class TimeBase:
             parts.append(f"{early.size} early (up to {-corr[early].min() / 1e3:.0f} ms)")
         if self.dropped:
             parts.append(f"{self.dropped} sweep{'s' if self.dropped != 1 else ''} dropped (kept as gaps)")
+        if self.alternatives:
+            n = len(self.alternatives)
+            parts.append(f"{n} sweep time{'s' if n != 1 else ''} the stamps cannot place (a dropped sweep before it, "
+                         "or its stamp a period late and the drop after it; the odometry's match decides)")
+        if self.decided_by_match:
+            parts.append(f"{len(self.decided_by_match)} decided by the match")
         how = "" if self.period_from == "stamps" else f", {self.period_from}"
         return (f"{', '.join(parts)}; sensor period {self.period_us / 1e3:.2f} ms{how}, host jitter "
                 f"±{self.tolerance_us / 1e3:.1f} ms: every sweep time put on the sensor's period")
@@ -259,6 +310,46 @@ def local_phase_us(stamps_us: np.ndarray, period_us: float, tol_us: float,
     return np.unwrap(out, period=period_us)
 
 
+def _slot_nodes(stamps_us: np.ndarray, base_us: np.ndarray, period_us: float, tol_us: float):
+    """(int64[N, S] the lattice slots each stamp may take, float list[N][S] their costs in periods:
+    a late stamp its delay, an early one beyond the band `EARLY_COST` + how early)."""
+    u = (stamps_us.astype(np.float64) - base_us) / period_us
+    nearest = np.round(u).astype(np.int64)
+    slots = nearest[:, None] + np.array(_SLOTS, dtype=np.int64)[None, :]  # [N, S]
+    offset = u[:, None] - slots  # periods, > 0 late
+    tol = tol_us / period_us
+    return slots, np.where(offset >= -tol, np.maximum(offset, 0.0), EARLY_COST - offset).tolist()
+
+
+def _forward_costs(slots: np.ndarray, node: list, period_us: float) -> tuple[list, np.ndarray]:
+    """(float list[N][S] the cheapest path cost up to and including each stamp's slot, int64[N, S]
+    the previous stamp's slot on that path): k strictly increasing, `DROP_COST` per skipped slot."""
+    slots_l = slots.tolist()
+    n, s = slots.shape
+    acc = [list(node[0])]
+    back = np.zeros((n, s), dtype=np.int64)
+    inf = math.inf
+    for i in range(1, n):
+        prev, cur, last, new = slots_l[i - 1], slots_l[i], acc[-1], [inf] * s
+        row = back[i]
+        for b in range(s):
+            kb, best, arg = cur[b], inf, 0
+            for a in range(s):
+                step = kb - prev[a]
+                if step >= 1 and last[a] < inf:
+                    c = last[a] + DROP_COST * (step - 1)
+                    if c < best:
+                        best, arg = c, a
+            new[b] = best + node[i][b]
+            row[b] = arg
+        acc.append(new)
+        if min(new) == inf:
+            raise SequenceError(f"sweep stamps {i - 1}–{i} cannot be sweeps of a sensor with a period of "
+                                f"{period_us / 1e3:.1f} ms (too many stamps within one period); check the "
+                                "recording's time file")
+    return acc, back
+
+
 def assign_sweep_indices(stamps_us: np.ndarray, base_us: np.ndarray, period_us: float, tol_us: float) -> np.ndarray:
     """int64[N] k_i: each stamp's slot on the lattice ``base_us[i] + k·period_us`` (the lattice's
     slot 0 as seen from stamp i; k not shifted to start at 0), strictly increasing, by the cheapest
@@ -267,41 +358,47 @@ def assign_sweep_indices(stamps_us: np.ndarray, base_us: np.ndarray, period_us: 
     Raises:
         SequenceError: stamps that no increasing slots fit (more than a few within one period).
     """
-    u = (stamps_us.astype(np.float64) - base_us) / period_us
-    nearest = np.round(u).astype(np.int64)
-    slots = nearest[:, None] + np.array(_SLOTS, dtype=np.int64)[None, :]  # [N, S]
-    offset = u[:, None] - slots  # periods, > 0 late
-    tol = tol_us / period_us
-    node = np.where(offset >= -tol, np.maximum(offset, 0.0), EARLY_COST - offset).tolist()
-    slots_l = slots.tolist()
-    n, s = slots.shape
-    acc = list(node[0])
-    back = np.zeros((n, s), dtype=np.int64)
-    inf = math.inf
-    for i in range(1, n):
-        prev, cur, new = slots_l[i - 1], slots_l[i], [inf] * s
-        row = back[i]
-        for b in range(s):
-            kb, best, arg = cur[b], inf, 0
-            for a in range(s):
-                step = kb - prev[a]
-                if step >= 1 and acc[a] < inf:
-                    c = acc[a] + DROP_COST * (step - 1)
-                    if c < best:
-                        best, arg = c, a
-            new[b] = best + node[i][b]
-            row[b] = arg
-        acc = new
-        if min(acc) == inf:
-            raise SequenceError(f"sweep stamps {i - 1}–{i} cannot be sweeps of a sensor with a period of "
-                                f"{period_us / 1e3:.1f} ms (too many stamps within one period); check the "
-                                "recording's time file")
+    slots, node = _slot_nodes(stamps_us, base_us, period_us, tol_us)
+    acc, back = _forward_costs(slots, node, period_us)
+    n = slots.shape[0]
     k = np.empty(n, dtype=np.int64)
-    b = int(np.argmin(acc))
+    b = int(np.argmin(acc[-1]))
     for i in range(n - 1, -1, -1):
         k[i] = slots[i, b]
         b = int(back[i, b])
     return k
+
+
+def slot_path_costs(stamps_us: np.ndarray, base_us: np.ndarray, period_us: float,
+                    tol_us: float) -> tuple[np.ndarray, np.ndarray]:
+    """(int64[N, S] slots, float64[N, S] costs): for each stamp and each lattice slot it may take,
+    the cost (periods) of the cheapest whole path of `assign_sweep_indices` through that slot. The
+    chosen path's slots cost the minimum; a slot within `ALTERNATIVE_MARGIN` of it is a reading of
+    the stamps nearly as good (`sweep_alternatives`).
+
+    The cost after a slot is the same forward pass run on the stamps reversed (slots negated: k still
+    increases, and a skipped slot costs the same either way)."""
+    slots, node = _slot_nodes(stamps_us, base_us, period_us, tol_us)
+    fwd, _ = _forward_costs(slots, node, period_us)
+    bwd, _ = _forward_costs(-slots[::-1], node[::-1], period_us)
+    # each path's cost counts its own node once: forward and backward both include it
+    cost = np.asarray(fwd) + np.asarray(bwd[::-1]) - np.asarray(node)
+    return slots, cost
+
+
+def sweep_alternatives(slots: np.ndarray, cost: np.ndarray, k: np.ndarray,
+                       margin: float = ALTERNATIVE_MARGIN) -> tuple:
+    """((i, (k_i, k_alt, …)), …): the stamps the fit cannot place, each with its fitted slot first and
+    the other slots whose cheapest path costs within ``margin`` periods of the best (from
+    `slot_path_costs`; ``k`` the fitted slots, in the same numbering as ``slots``)."""
+    best = float(cost.min(axis=1).min()) if cost.size else 0.0
+    out = []
+    for i in np.flatnonzero(np.sum(cost <= best + margin, axis=1) > 1):
+        alt = sorted({int(s) for s, c in zip(slots[i], cost[i]) if c <= best + margin and s != k[i]},
+                     key=lambda s: abs(s - int(k[i])))
+        if alt:
+            out.append((int(i), (int(k[i]), *alt)))
+    return tuple(out)
 
 
 def local_line(x: np.ndarray, y: np.ndarray, half_window: int) -> np.ndarray:
@@ -364,5 +461,8 @@ def fit_time_base(timestamps_us, period_hint_us: float | None = None) -> TimeBas
         lattice, period = fit_lattice_us(t, k, on_time)
         base = lattice - k * period
     times = np.round(lattice).astype(np.int64)
+    # the readings nearly as cheap as the fit's, on the lattice fitted last (its slots number as k)
+    slots, cost = slot_path_costs(t, lattice - k * period, period, tol)
+    alternatives = tuple((i, tuple(int(s) - int(k[0]) for s in ks)) for i, ks in sweep_alternatives(slots, cost, k))
     return TimeBase(t.copy(), times, k - k[0], float(period), float(tol),
-                    tuple(period / j for j in range(1, len(candidates) + 1)) or (float(period),), how)
+                    tuple(period / j for j in range(1, len(candidates) + 1)) or (float(period),), how, alternatives)

@@ -308,7 +308,8 @@ class EstimateStream:
                         if name_us is not None:
                             name_offset_us = scan.timestamp_us - name_us
                         self.wall_s = time.perf_counter() - t0
-                        yield i, scan.timestamp_us, est
+                        # the trajectory's time: the match may have decided another whole period (`whole_periods`)
+                        yield i, (scan.timestamp_us if est is None else est.timestamp_us), est
                         continue
                 reason, exc = problem
                 if self.on_error != "skip":
