@@ -4,17 +4,21 @@
 sweep through these stages, each in its own module:
 
     time         in order, the same range bins, a new segment   stream_time, gaps.SweepPeriod (the period:
-                 after a stamp jump, the interval's gap flag     io.timebase, fitted once per recording)
+                 after a stamp jump, the interval's gap flag;    io.timebase, fitted once per recording),
+                 where the stamps cannot place a sweep, its      whole_periods
+                 whole periods decided by the match
     sweep checks geometry, degenerate sweeps                     sweep_checks
-    graph input  the sweep as the graph takes it (de-skewed      sweep_input.graph_input, polar
-                 with the reference's twist, or drawn in a
-                 predicted frame)
-    predict      where the constant-velocity prior puts it       motion_prior.MotionPrior.predict,
-                 (across a gap: an arc; with ``centre_yaw``:      gaps.crossing_prior, centring.next_turn
-                 the turn to draw it with)
-    match        the ONNX graph against the reference; a gap     graph_step.GraphStep,
-                 from several window centres, taken where         gaps.crossing_readings / consensus
-                 readings agree within the gap's prior
+    graph input  the sweep as the graph takes it (de-skewed      sweep_input.graph_input, polar;
+                 with the reference's twist, or drawn in a       deskew_stage.DeskewStage (which twist,
+                 predicted frame)                                when the reference is redrawn)
+    predict      where the constant-velocity prior puts it       match_stage.MatchStage (which match),
+                 (across a gap: an arc; with ``centre_yaw``:      motion_prior.MotionPrior.predict,
+                 the turn to draw it with)                       gaps.crossing_prior, centring.next_turn
+    match        the ONNX graph against the reference; a gap     match_stage.MatchStage.match,
+                 from several window centres, taken where         graph_step.GraphStep,
+                 readings agree within the gap's prior;          gaps.crossing_readings / consensus;
+                 de-skew's first match drawn again with the      deskew_stage.DeskewStage.first_match
+                 velocity it measured
     fuse         the match with the prediction / external        motion_prior (information form, χ² gate)
                  odometry
     chain        the new absolute pose, the reference kept or    odometer._accept / _degenerate / _append;

@@ -20,14 +20,14 @@ Faults, and what the odometer does about them (never a NaN, never a broken traje
   prior can predict the motion over the interval, the new sweep is drawn in the predicted frame
   (Cartesian models; the last velocity held as an arc), the graph measures the residual and the
   pose is the residual composed with the prediction, its covariance carried through
-  (`radar_odom.odometry.gaps`): the ±window of the search is centred on the prediction instead of
-  on standing still. The crossing is matched from nine centres around the prediction (and again
-  on each sharp reading) and taken only where two readings agree within the gap's prior; else the
-  estimate is the prediction with a covariance that grows with the gap, flagged ``"gated"``
-  (docs/gaps.md). With ``max_gap_s`` set, a
-  longer gap is a hard stop instead: ``on_gap="raise"`` (default) raises `StreamError` (call
-  `reset()` and go on); ``on_gap="reset"`` resets the stream itself, so that sweep starts a
-  new trajectory at identity and `step` returns None.
+  (`radar_odom.odometry.gaps`; the crossing is `radar_odom.odometry.match_stage`'s): the ±window
+  of the search is centred on the prediction instead of on standing still. The crossing is matched
+  from nine centres around the prediction (and again on each sharp reading) and taken only where
+  two readings agree within the gap's prior; else the estimate is the prediction with a covariance
+  that grows with the gap, flagged ``"gated"`` (docs/gaps.md). With ``max_gap_s`` set, a longer gap
+  is a hard stop instead: ``on_gap="raise"`` (default) raises `StreamError` (call `reset()` and go
+  on); ``on_gap="reset"`` resets the stream itself, so that sweep starts a new trajectory at
+  identity and `step` returns None.
 - Sweep geometry. A Cartesian-input model runs on any sweep geometry (azimuth count, bin count,
   range resolution and offset may all differ from the radar it was trained on): the sweep is
   resampled onto the model's grid first. It needs only a sweep that reaches the disc it
@@ -66,20 +66,8 @@ its whole interval (from the last good sweep), before it is re-expressed. With
 ``motion_prior=False`` and no external odometry the odometer behaves as it did before the prior
 existed (the velocity is still tracked, for degenerate sweeps and gaps).
 
-Motion compensation (``deskew=True``; Cartesian models). A spinning radar takes a whole period
-per sweep, so at 10 m/s the scene shifts 2.5 m between its first and last azimuth. With de-skew
-on, each sweep is drawn as seen from the sensor at its first azimuth's instant
-(``scan.timestamp_us``), every azimuth moved by the velocity of the motion so far (the mean
-of the last ``DESKEW_STEPS`` estimates, constant over the sweep, from each row's timestamp:
-Oxford and Boreas carry them, RADIATE's are spread uniformly over the period;
-`radar_odom.polar.moving_sample_maps`).
-Poses then refer to the first-azimuth instants of the two sweeps, so both sweeps of a match are
-drawn with the same twist: the reference is kept as recorded and redrawn (one extra graph call)
-when the stream's velocity has moved away from the twist it was drawn with
-(`radar_odom.odometry.sweep_input.twists_differ`); otherwise the new sweep takes the reference's
-twist. A stream's first match has no velocity yet: it is made as recorded, its pose over its
-interval gives the velocity, and the pair is drawn again with it and matched again (two extra
-graph calls, once per stream).
+Motion compensation (``deskew=True``; Cartesian models): each sweep drawn as seen from the sensor at
+its first azimuth's instant, both sweeps of a match with one twist (`radar_odom.odometry.deskew_stage`).
 
 Yaw centring (``centre_yaw=True``; Cartesian models; off by default): each sweep drawn turned by
 the predicted yaw, so the pull of the pixel grids goes toward the prediction rather than toward
@@ -89,21 +77,21 @@ read more fully, the real drive worse, hence off).
 from __future__ import annotations
 
 import threading
-from collections import deque
 
 import numpy as np
 
 from ..errors import ConfigError, InputTypeError, ModelMismatchError
 from ..onnx_model import OnnxModel
 from ..scan import RadarScan
-from ..se2 import invert, se2, to_xyyaw, turn_frame
-from . import gaps, stream_time
+from ..se2 import invert, se2, to_xyyaw
+from . import gaps, stream_time, whole_periods
 from .arguments import config_number, stream_timestamp
-from .centring import MAX_TURN_RAD, next_turn, uncentre
+from .deskew_stage import DESKEW_STEPS, DeskewStage  # noqa: F401  (DESKEW_STEPS re-exported: its home was here)
 from .estimate import BRIDGED, DEGENERATE, Estimate, PreparedSweep, Trajectory, window_covariance  # noqa: F401
 from .gaps import GAP, NEW_SEGMENT, NEW_SEGMENT_GAP_S, SweepPeriod
 from .graph_step import GraphStep
-from .motion_prior import GATED, PRIOR_DOMINATED, ExternalOdometry, MotionPrior, MotionPriorConfig
+from .match_stage import MatchStage
+from .motion_prior import GATED, ExternalOdometry, MotionPrior, MotionPriorConfig
 from .motion_prior import compose as compose_relative
 from .motion_prior import fuse as fuse_estimates
 from .sweep_checks import (  # noqa: F401  (re-exported: their home was here)
@@ -114,7 +102,7 @@ from .sweep_checks import (  # noqa: F401  (re-exported: their home was here)
     model_region_m,
     sweep_problem,
 )
-from .sweep_input import SweepMotion, deskew_twist, graph_input, twists_differ
+from .sweep_input import SweepMotion, graph_input
 
 # De-skew is on by default only where it measured better on real drives (README, real-drive table)
 DESKEW_DEFAULT = False
@@ -122,7 +110,6 @@ CENTRE_YAW_DEFAULT = False  # `radar_odom.odometry.centring`; None in the constr
 # what step()/prepare() say to a caller passing an array: how to make the sweep they take
 SCAN_HINT = ("wrap the sweep first: RadarScan.from_arrays(timestamps_us, azimuths_rad, power, "
              "range_resolution_m=...) for arrays, radar_odom.load_scan(path) for a file")
-DESKEW_STEPS = 4  # estimates averaged into the de-skew velocity (1 s at 4 Hz)
 
 
 def _is_loaded_model(model) -> bool:
@@ -151,11 +138,15 @@ class RadarOdometer:
             module docstring and `radar_odom.odometry.motion_prior`).
         deskew: de-skew both sweeps of each match with one velocity of the motion so far
             (constant over the sweep) before matching, so that the pose refers to the two sweeps'
-            first-azimuth instants (Cartesian models; see "Motion compensation" in the module
-            docstring). ``reference_redraws`` counts the graph calls spent redrawing a reference.
+            first-azimuth instants (Cartesian models; `radar_odom.odometry.deskew_stage`).
+            ``reference_redraws`` counts the graph calls spent redrawing a reference.
         sweep_period_s: the sensor's period (s) where known (``Sequence.time_base.period_s``, which
             `run_sequence` passes): an interval over 1.5 of it is a gap. None (default): 1.5 of the
             median of the last intervals (`radar_odom.odometry.gaps.SweepPeriod`).
+        time_base: the recording's `radar_odom.io.timebase.TimeBase` (``Sequence.time_base``, which
+            `run_sequence` passes): its period is ``sweep_period_s`` (unless given), and where its
+            stamps cannot place a sweep (``TimeBase.alternatives``) the match decides the sweep's time
+            (`radar_odom.odometry.whole_periods`); ``time_base`` then gives the decided one.
 
     Raises `ConfigError` (a ValueError) for an argument it cannot use (``max_gap_s`` or
     ``sweep_period_s`` NaN or ≤ 0, a fraction outside [0, 1], an unknown ``on_gap``); `InvalidModelError` for a corrupt
@@ -172,7 +163,8 @@ class RadarOdometer:
     def __init__(self, model, threads: int | None = None, providers=None, max_gap_s: float | None = None,
                  on_gap: str = "raise", min_valid_fraction: float = 0.5,
                  motion_prior: bool | MotionPriorConfig = True, min_coverage: float = MIN_COVERAGE,
-                 deskew: bool = DESKEW_DEFAULT, centre_yaw: bool | None = None, sweep_period_s: float | None = None):
+                 deskew: bool = DESKEW_DEFAULT, centre_yaw: bool | None = None, sweep_period_s: float | None = None,
+                 time_base=None):
         if on_gap not in ("raise", "reset"):
             raise ConfigError(f"on_gap must be 'raise' or 'reset', got {on_gap!r}")
         self.max_gap_s = None if max_gap_s is None else config_number(max_gap_s, "max_gap_s", low=0.0, open_low=True)
@@ -206,15 +198,25 @@ class RadarOdometer:
         # a polar model's graph reads the sweep as recorded, a sweep-form graph draws it as recorded: neither
         # de-skew nor a moved frame (nor the gap crossing and yaw centring, which draw the sweep moved)
         self._movable = self.profile.input_kind != "polar" and self.info.form != "sweep"
-        self.deskew = bool(deskew) and self._movable
+        # the de-skew stage: which twist a match's sweeps are drawn with; the graph call to redraw stays here
+        self._deskew_stage = DeskewStage(bool(deskew) and self._movable, self.profile, self.info.mount_yaw_rad,
+                                         self._redraw_reference)
         if centre_yaw is None:
             centre_yaw = CENTRE_YAW_DEFAULT
         if not isinstance(centre_yaw, (bool, np.bool_)):
             raise ConfigError(f"centre_yaw must be True, False or None, got {centre_yaw!r}")
-        self.centre_yaw = bool(centre_yaw) and self._movable
         # the sensor's period where known (a recording's time base): a gap is then > 1.5 of it, not of a median
+        self._times = whole_periods.SweepTimes(time_base)
+        self._period_from_base = sweep_period_s is None  # the time base's period, which a sweep's turn may refine
+        if sweep_period_s is None:
+            sweep_period_s = self._times.period_s
         self._period = SweepPeriod(known_s=None if sweep_period_s is None else config_number(
             sweep_period_s, "sweep_period_s", low=0.0, open_low=True))
+        # the predict and match stages (a gap crossed, the yaw centred); the graph calls stay here
+        self._match_stage = MatchStage(
+            self.profile, self.info.mount_yaw_rad, self._movable, bool(centre_yaw) and self._movable, self._period,
+            self._prior, lambda x, keep_reference=False: self._run_pair(x, keep_reference),
+            self._run_first, lambda scan, motion=None: self._sweep_input(scan, motion))
         self.reset()
 
     @property
@@ -222,9 +224,30 @@ class RadarOdometer:
         return self._model.path
 
     @property
+    def time_base(self):
+        """The recording's time base with the sweep times the match decided (`TimeBase.decided`), or None."""
+        with self._lock:
+            return self._times.time_base
+
+    @property
     def motion_prior(self) -> MotionPriorConfig | None:
         """The motion prior's configuration, or None when it is off."""
         return self._prior.config if self._use_prediction else None
+
+    @property
+    def deskew(self) -> bool:
+        """De-skew on (the constructor's ``deskew``; False for a model whose sweeps cannot be drawn moved)."""
+        return self._deskew_stage.enabled
+
+    @property
+    def centre_yaw(self) -> bool:
+        """Yaw centring on (the constructor's ``centre_yaw``; False for a model whose sweeps cannot be drawn moved)."""
+        return self._match_stage.centre_yaw
+
+    @property
+    def reference_redraws(self) -> int:
+        """Graph calls spent redrawing a reference for de-skew (this stream; `DeskewStage.redraws`)."""
+        return self._deskew_stage.redraws
 
     def reset(self) -> None:
         """Forget the stream: the next sweep starts a new trajectory at identity."""
@@ -237,11 +260,9 @@ class RadarOdometer:
         self._ref_feed: np.ndarray | None = None  # state (stream form) or sweep input (pair form)
         self._ref_index = -1  # trajectory index of the sweep ``_ref_feed`` belongs to
         self._ref_turn = 0.0  # turn (rad) the reference was drawn with (`radar_odom.odometry.centring`)
-        self._ref_scan: RadarScan | None = None  # the reference as recorded, redrawn when de-skew needs it
-        self._ref_twist: tuple | None = None  # the de-skew twist the reference was drawn with
-        self.reference_redraws = 0  # graph calls spent redrawing a reference for de-skew (this stream)
-        self._recent_motion: deque = deque(maxlen=DESKEW_STEPS)  # (relative pose, interval s)
+        self._deskew_stage.reset()  # the reference as recorded, its twist, the motion de-skew averages
         self._forget_motion()
+        self._times.reset()  # the sweep times the match decided
         self._range_scale: tuple | None = None  # (range resolution m, offset m) of the stream's sweeps
         self._azimuths: int | None = None  # azimuth rows of the stream's sweeps (its first one's)
 
@@ -252,7 +273,7 @@ class RadarOdometer:
         # external odometry from the reference sweep to the latest one, (pose, cov); None if unknown
         self._odometry_since_ref: tuple | None = None
         self._period.reset()
-        self._recent_motion.clear()
+        self._deskew_stage.forget_motion()
 
     @property
     def trajectory(self) -> Trajectory:
@@ -355,31 +376,38 @@ class RadarOdometer:
         dt_s = (ts - self._stamps[-1]) * 1e-6
         if self.max_gap_s is None and dt_s > NEW_SEGMENT_GAP_S:
             return self._new_segment(scan, prepared, problem, ts)
+        if problem is None:  # whole periods the stamps cannot tell: the match decides the sweep's time
+            ts = self._sweep_time(scan, ts)
+            dt_s = (ts - self._stamps[-1]) * 1e-6
         flags = self._interval_flags(dt_s)
         odo_rel = odometry.relative_pose(dt_s) if odometry is not None else None
         if problem is not None:
             return self._degenerate(problem, ts, dt_s, odo_rel, flags)
         if self._ref_feed is None:
             return self._first_reference(scan, prepared, ts, dt_s, odo_rel, flags)
-        # graph input: drawn with the reference's twist (de-skew), else as prepared
-        twist = self._pair_twist(scan)
+        # graph input: drawn with the reference's twist (de-skew stage), else as prepared
+        twist = self._deskew_stage.pair_twist(scan)
         x = self._input(scan, prepared, twist)
-        # predict and match: against the reference; across a gap, from the prediction
+        # predict and match: against the reference; across a gap, from the prediction; a de-skewed
+        # stream's first match drawn again with the velocity it measured
         out = self._match(scan, x, ts, twist)
-        if out is not None and twist is None and self.deskew and not self._recent_motion:
-            out, twist = self._match_deskewed_first(scan, ts, out)
+        out, twist = self._deskew_stage.first_match(
+            scan, (ts - self._stamps[self._ref_index]) * 1e-6, out, twist,
+            lambda drawn: self._match(scan, self._input(scan, None, drawn), ts, drawn))
         if out is None:
             return self._degenerate("nonfinite", ts, dt_s, odo_rel, flags)
         # fuse with the prior and chain onto the trajectory; the new sweep becomes the reference
         pose_ref, cov, new_ref, new_turn = out[:4]
-        flags |= out[4] if len(out) > 4 else set()  # a gap crossing's verdict (`_cross_gap`)
+        flags |= out[4] if len(out) > 4 else set()  # a gap crossing's verdict (`MatchStage.cross_gap`)
         est = self._accept(pose_ref, cov, new_ref, ts, dt_s, odo_rel, flags, ref_turn=new_turn)
-        self._keep_reference(scan, twist)
+        self._deskew_stage.keep_reference(scan, twist)
         return est
 
     def _start_stream(self, scan: RadarScan, prepared, problem, ts: int) -> None:
         """A stream's first sweep, recorded at identity. A stream must start from a sweep that can be
         matched: a degenerate first sweep is recorded but never becomes the reference."""
+        if self._times.adopt_rotation(scan) and self._period_from_base:  # its own turn picked the period
+            self._period.known_s = self._times.period_s
         if problem is None:
             self._make_reference(scan, prepared, None, 0)  # no velocity yet
         self._append(np.eye(3), ts)
@@ -388,7 +416,7 @@ class RadarOdometer:
     def _first_reference(self, scan: RadarScan, prepared, ts: int, dt_s: float, odo_rel, flags) -> Estimate:
         """Every earlier sweep of the stream was degenerate: nothing to match against yet, so this
         one gets the prior's pose (flagged ``no_reference``) and becomes the reference."""
-        twist = self._deskew_twist(scan)
+        twist = self._deskew_stage.stream_twist(scan)
         est = self._degenerate("no_reference", ts, dt_s, odo_rel, flags)
         self._make_reference(scan, prepared, twist, len(self._poses) - 1)
         return est
@@ -397,7 +425,7 @@ class RadarOdometer:
         """Make the sweep at trajectory ``index`` the reference, drawn with ``twist`` in its own frame."""
         self._ref_feed = self._run_first(self._input(scan, prepared, twist))
         self._ref_turn = 0.0
-        self._keep_reference(scan, twist)
+        self._deskew_stage.keep_reference(scan, twist)
         self._set_reference(index)
 
     # --- pieces ---------------------------------------------------------------------------
@@ -424,60 +452,15 @@ class RadarOdometer:
     def _sweep_input(self, scan: RadarScan, motion: SweepMotion | None = None) -> np.ndarray:
         return graph_input(scan, self.info, motion)
 
-    def _deskew_twist(self, scan: RadarScan):
-        """The velocity to de-skew ``scan`` with, or None: the mean over the last
-        ``DESKEW_STEPS`` estimates (pose / interval). The last step alone feeds back: a yaw
-        error de-skews the next sweep wrongly, which errs the next yaw the other way (measured
-        on the shared RADIATE drive: per-step yaw error 1.58° with one step, 0.49° with four,
-        0.48° without de-skew)."""
-        if not self.deskew or not self._recent_motion:
-            return None
-        poses = np.array([m[0] for m in self._recent_motion])
-        seconds = sum(m[1] for m in self._recent_motion)
-        return self._radar_twist(poses.sum(axis=0) / seconds, scan)
-
-    def _radar_twist(self, velocity, scan: RadarScan):
-        """`deskew_twist` of a velocity (x m/s, y m/s, yaw rad/s) in the vehicle's frame, the frame
-        estimates are reported in: turned into the radar's by the model's mount yaw."""
-        radar = turn_frame(np.asarray(velocity, dtype=np.float64), None, -self.info.mount_yaw_rad)[0]
-        return deskew_twist(radar, scan, self.profile)
-
-    def _pair_twist(self, scan: RadarScan):
-        """The twist the new sweep is drawn with, the one the reference was drawn with: the
-        stream's (`_deskew_twist`) once that has moved away from the reference's (the reference
-        redrawn with it, one graph call), else the reference's."""
-        want = self._deskew_twist(scan)
-        if not self.deskew or self._ref_scan is None or not twists_differ(want, self._ref_twist, scan, self.profile):
-            return self._ref_twist if self.deskew else None
-        return want if self._redraw_reference(want) else self._ref_twist
-
-    def _redraw_reference(self, twist) -> bool:
-        """Draw the reference sweep again with ``twist`` (and its turn) and make it the reference;
-        False (the reference kept) where the graph's output is not finite."""
+    def _redraw_reference(self, ref_scan: RadarScan, twist) -> bool:
+        """The de-skew stage's graph call: the reference sweep drawn again with ``twist`` (and its turn)
+        becomes the reference; False (the reference kept) where the graph's output is not finite."""
         turn = (0.0, 0.0, self._ref_turn) if self._ref_turn else None
-        feed = self._run_first(self._sweep_input(self._ref_scan, SweepMotion(twist=twist, frame_pose=turn)))
-        self.reference_redraws += 1
+        feed = self._run_first(self._sweep_input(ref_scan, SweepMotion(twist=twist, frame_pose=turn)))
         if not np.all(np.isfinite(feed)):
             return False
-        self._ref_feed, self._ref_twist = feed, twist
+        self._ref_feed = feed
         return True
-
-    def _match_deskewed_first(self, scan: RadarScan, ts: int, out):
-        """(match, twist) of a stream's first match with de-skew on: ``out``, made as recorded,
-        gives the velocity over its interval; the reference and the new sweep are drawn with it
-        and matched again (two graph calls). ``out`` and None where that velocity moves no pixel;
-        (None, None) where the second match is not finite (the reference then stays redrawn)."""
-        interval_s = (ts - self._stamps[self._ref_index]) * 1e-6
-        twist = self._radar_twist(np.asarray(out[0]) / interval_s, scan)
-        if twist is None or not self._redraw_reference(twist):
-            return out, None
-        again = self._match(scan, self._input(scan, None, twist), ts, twist)
-        return (again, twist) if again is not None else (None, None)
-
-    def _keep_reference(self, scan: RadarScan, twist) -> None:
-        """Remember the new reference sweep as recorded and the twist it was drawn with (de-skew
-        redraws it when the stream's velocity moves away from that twist)."""
-        self._ref_scan, self._ref_twist = (scan, twist) if self.deskew else (None, None)
 
     def _interval_flags(self, dt_s: float) -> set:
         """{"gap"} when ``dt_s`` (since the previous sweep) is a gap, else empty; then the interval
@@ -489,98 +472,34 @@ class RadarOdometer:
     def _input(self, scan: RadarScan, prepared: PreparedSweep | None, twist) -> np.ndarray:
         """The graph input of the sweep as the stream takes it: de-skewed when that is on (the
         prepared image is drawn without the velocity, which only the stream knows); ``twist``:
-        `_deskew_twist`'s, or None."""
+        `DeskewStage.pair_twist`'s, or None."""
         if twist is not None:
             return self._sweep_input(scan, SweepMotion(twist=twist))
         return self._sweep_input(scan) if prepared is None else prepared.input
 
     def _match(self, scan: RadarScan, x: np.ndarray, ts: int, twist):
-        """The predict and match stages: (pose, cov, new reference, its turn[, flags]) of the new sweep
-        against the reference, or None if non-finite.
-
-        Where the reference is further back than a gap (`radar_odom.odometry.gaps`) and the prior can
-        predict the motion over it, the gap is crossed from the prediction (`_cross_gap`). Otherwise
-        one match (`_match_plain`; with ``centre_yaw`` the sweep drawn turned by the predicted yaw).
-        Poses leave here in the vehicle's frame: a model with a mount yaw
-        (``ModelInfo.mount_yaw_rad``, `radar-odom adapt`) has its matches turned by it.
-        """
+        """The predict and match stages (`MatchStage.match`): (pose, cov, new reference, its turn[, flags])
+        of the new sweep against the reference, or None if non-finite."""
         ref_ts = self._stamps[self._ref_index]
-        interval_s = (ts - ref_ts) * 1e-6
-        if self._movable and self._period.is_gap(interval_s) and self._prior.ready:
-            # the last velocity held as a constant twist over the gap (an arc), its covariance grown with it
-            pred = gaps.crossing_prior(self._prior.velocity * self._prior.interval_s,
-                                       self._prior.velocity_covariance * self._prior.interval_s ** 2,
-                                       self._prior.interval_s, interval_s, self._lead_s(ref_ts))
-            if pred is not None:
-                return self._cross_gap(scan, x, twist, pred)
-        return self._match_plain(scan, x, twist, interval_s, ref_ts)
+        return self._match_stage.match(scan, x, twist, (ts - ref_ts) * 1e-6, self._lead_s(ref_ts), self._ref_turn)
 
-    def _match_plain(self, scan: RadarScan, x: np.ndarray, twist, interval_s: float, ref_ts: int):
-        """(pose, cov, new reference, its turn) of one match of the new sweep against the reference
-        (drawn turned by the predicted yaw with ``centre_yaw``), or None if non-finite."""
-        if self.centre_yaw:
-            out = self._match_centred(scan, x, twist, interval_s, ref_ts)
-            if out is None:
-                return None
-        else:
-            out = self._run_pair(x)
-            if out is None:
-                return None
-            out = (*out, 0.0)  # without centring every reference is drawn at turn 0
-        mount = self.info.mount_yaw_rad
-        if not mount:
-            return out
-        return (*turn_frame(out[0], out[1], mount), out[2], out[3])
-
-    def _cross_gap(self, scan: RadarScan, x: np.ndarray, twist, pred):
-        """(pose, cov, new reference, 0.0[, flags]) of a sweep across a gap, ``pred`` the gap's prior
-        (pose, cov): the sweep matched from several window centres around the prediction
-        (`gaps.crossing_readings`); taken where readings agree within the prior (`gaps.consensus`,
-        `gaps.crossing_d2`), else the prediction, flagged ``gated`` and ``prior_dominated``. None where no
-        match is finite or the new reference is not. The new reference is the sweep in its own frame."""
-        mount = self.info.mount_yaw_rad
-        predicted = turn_frame(pred[0], None, -mount)[0]  # the prediction in the radar's frame
-        # the reference was drawn turned by a_ref: draw the new sweep in R(a_ref)'s view of the prediction
-        a_ref = self._ref_turn
-        turned = to_xyyaw(se2(0.0, 0.0, -a_ref) @ se2(*predicted))
-
-        def residual_at(centre):
-            drawn = self._sweep_input(scan, SweepMotion(twist=twist, frame_pose=tuple(to_xyyaw(invert(se2(*centre))))))
-            out = self._run_pair(drawn, keep_reference=True)
-            return None if out is None else out[:2]
-
-        readings = gaps.crossing_readings(turned, residual_at, self.profile)
-        if readings is None:
-            return None
-        crossed = [turn_frame(*uncentre(*m, a_ref, 0.0), mount) for m in readings]
-        new_ref = self._run_first(x)
-        if not np.all(np.isfinite(new_ref)):
-            return None
-        tol_m, tol_rad, sharp_m = gaps.agreement(self.profile)
-        agreed = gaps.consensus([c[0] for c in crossed], [c[1] for c in crossed], tol_m, tol_rad, sharp_m, prior=pred)
-        if agreed is None or gaps.crossing_d2(agreed[0], agreed[1], *pred) > self._prior.config.gate_d2:
-            # no centre agreed, or they agree on a motion the gap's prior rules out: keep the prediction
-            return pred[0], pred[1], new_ref, 0.0, {GATED, PRIOR_DOMINATED}
-        return agreed[0], agreed[1], new_ref, 0.0
-
-    def _match_centred(self, scan: RadarScan, x: np.ndarray, twist, interval_s: float, ref_ts: int):
-        """(pose in the radar's frame, cov, new reference, its turn) with the new sweep drawn turned
-        by the predicted yaw, or None where the graph's output is not finite. A turn beyond
-        `MAX_TURN_RAD` re-draws the new reference in its own frame (a second graph call)."""
-        pred = self._prior.predict(interval_s, self._lead_s(ref_ts))
-        a_ref = self._ref_turn
-        a_new = next_turn(a_ref, None if pred is None else float(pred[0][2]))
-        drawn = x if a_new == 0.0 else self._sweep_input(scan, SweepMotion(twist=twist, frame_pose=(0.0, 0.0, a_new)))
-        out = self._run_pair(drawn)
-        if out is None:
-            return None
-        residual, residual_cov, new_ref = out
-        pose, cov = uncentre(residual, residual_cov, a_ref, a_new)
-        if abs(a_new) > MAX_TURN_RAD:
-            new_ref, a_new = self._run_first(x), 0.0
-            if not np.all(np.isfinite(new_ref)):
-                return None
-        return pose, cov, new_ref, a_new
+    def _sweep_time(self, scan: RadarScan, ts: int) -> int:
+        """The time stage's whole periods: where the stamps cannot place this sweep (a drop before it,
+        or its stamp a period late and the drop after it), its time from the match
+        (`whole_periods.decide_time`); the time base's time where they can, or where nothing can decide
+        (no reference, no velocity, a model whose sweeps cannot be drawn moved, no clear lead); ``ts``
+        for a sweep not in the time base."""
+        options = self._times.options(ts, self._stamps[-1])
+        if not options:  # not a sweep of the time base (or none given): its own time
+            return ts
+        if len(options) < 2 or self._ref_feed is None or not self._movable or not self._prior.ready:
+            return options[0][1]  # the fit's
+        ref_ts, twist = self._stamps[self._ref_index], self._deskew_stage.ref_twist  # None with de-skew off
+        stage = self._match_stage
+        chosen, _ = whole_periods.decide_time(
+            [t for _, t in options], ref_ts, stage.prior_step(), self._lead_s(ref_ts),
+            lambda pose: stage.readings_around(scan, twist, pose, self._ref_turn) or [], gaps.agreement(self.profile))
+        return options[0][1] if chosen is None else self._times.decide(ts, options[chosen][0])
 
     def _run_first(self, x: np.ndarray) -> np.ndarray:
         """The reference state of a sweep with graph input ``x`` (`GraphStep.first`)."""
@@ -633,7 +552,7 @@ class RadarOdometer:
         self._ref_feed = new_ref
         self._ref_turn = float(ref_turn)
         if GATED not in flags:
-            self._recent_motion.append((np.asarray(rel, dtype=np.float64), dt_s))
+            self._deskew_stage.observe(rel, dt_s)
         self._append(absolute, ts)
         self._set_reference(len(self._poses) - 1)
         return Estimate(np.asarray(rel, dtype=np.float64), fused_cov, ts, frozenset(flags),

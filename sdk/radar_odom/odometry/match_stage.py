@@ -1,0 +1,150 @@
+"""The predict and match stages of a stream: the new sweep matched against the reference.
+
+`MatchStage.match` gives (pose, cov, new reference, its turn[, flags]) of the new sweep against the
+reference sweep, or None where the graph's output is not finite. Poses leave it in the vehicle's
+frame: a model with a mount yaw (``ModelInfo.mount_yaw_rad``, `radar-odom adapt`) has its matches
+turned by it. Three ways to match:
+
+- across a gap (the reference further back than a gap, `gaps.SweepPeriod`, and the motion prior can
+  predict the motion over it): the sweep matched from several window centres around the prediction
+  (the last velocity held as an arc, `gaps.crossing_prior`), taken where the readings agree within
+  the gap's prior, else the prediction, flagged ``gated`` and ``prior_dominated`` (docs/gaps.md);
+- with ``centre_yaw``: one match, the new sweep drawn turned by the predicted yaw
+  (`radar_odom.odometry.centring`);
+- otherwise one match of the sweep as drawn.
+
+`MatchStage.readings_around` (the new sweep matched with the window centred around a pose) is also
+what the time stage's whole periods decide a sweep's time with (`whole_periods.decide_time`).
+
+The graph calls and the stream's state stay the odometer's: the stage takes the graph calls as
+callables (``run_pair``, ``run_first``, ``sweep_input``) and each call the reference's turn and the
+lead of the velocity's interval; it reads the odometer's `SweepPeriod` and `MotionPrior`, never
+changes them.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from ..se2 import invert, se2, to_xyyaw, turn_frame
+from . import gaps
+from .centring import MAX_TURN_RAD, next_turn, uncentre
+from .motion_prior import GATED, PRIOR_DOMINATED
+from .sweep_input import SweepMotion
+
+
+class MatchStage:
+    """How a new sweep is matched against the reference: across a gap, centred on the predicted yaw, or plain.
+
+    Args:
+        profile: the model's `GridProfile` (the window, the readings' agreement tolerances).
+        mount_yaw_rad: the model's mount yaw (``ModelInfo.mount_yaw_rad``): radar frame → vehicle's.
+        movable: the model's sweeps can be drawn moved (not polar, not sweep form); else no gap crossing.
+        centre_yaw: draw the new sweep turned by the predicted yaw (already False where not ``movable``).
+        period: the odometer's `gaps.SweepPeriod` (what is a gap).
+        prior: the odometer's `MotionPrior` (its velocity predicts the motion; read only).
+        run_pair: ``(graph input, keep_reference=False) -> (pose, cov, new reference) or None``: the
+            graph's match against the current reference (`GraphStep.match`).
+        run_first: ``graph input -> reference state``: a sweep made a reference (`GraphStep.first`).
+        sweep_input: ``(scan, SweepMotion) -> graph input``: the sweep drawn moved (`sweep_input.graph_input`).
+    """
+
+    def __init__(self, profile, mount_yaw_rad: float, movable: bool, centre_yaw: bool, period, prior,
+                 run_pair: Callable, run_first: Callable, sweep_input: Callable):
+        self.profile = profile
+        self.mount_yaw_rad = mount_yaw_rad
+        self.movable = bool(movable)
+        self.centre_yaw = bool(centre_yaw)
+        self._period = period
+        self._prior = prior
+        self._run_pair = run_pair
+        self._run_first = run_first
+        self._sweep_input = sweep_input
+
+    def match(self, scan, x: np.ndarray, twist, interval_s: float, lead_s: float, ref_turn: float):
+        """(pose, cov, new reference, its turn[, flags]) of the new sweep (graph input ``x``, drawn with
+        ``twist``) against the reference ``interval_s`` back (drawn turned by ``ref_turn``), or None if
+        non-finite; ``lead_s``: seconds from the end of the velocity's interval to the reference.
+        Across a gap the prior can predict, `cross_gap`; else one match (`match_plain`)."""
+        if self.movable and self._period.is_gap(interval_s) and self._prior.ready:
+            pred = gaps.crossing_prior(*self.prior_step(), interval_s, lead_s)
+            if pred is not None:
+                return self.cross_gap(scan, x, twist, pred, ref_turn)
+        return self.match_plain(scan, x, twist, interval_s, lead_s, ref_turn)
+
+    def match_plain(self, scan, x: np.ndarray, twist, interval_s: float, lead_s: float, ref_turn: float):
+        """(pose, cov, new reference, its turn) of one match of the new sweep against the reference
+        (drawn turned by the predicted yaw with ``centre_yaw``), or None if non-finite."""
+        if self.centre_yaw:
+            out = self.match_centred(scan, x, twist, interval_s, lead_s, ref_turn)
+            if out is None:
+                return None
+        else:
+            out = self._run_pair(x)
+            if out is None:
+                return None
+            out = (*out, 0.0)  # without centring every reference is drawn at turn 0
+        mount = self.mount_yaw_rad
+        if not mount:
+            return out
+        return (*turn_frame(out[0], out[1], mount), out[2], out[3])
+
+    def cross_gap(self, scan, x: np.ndarray, twist, pred, ref_turn: float):
+        """(pose, cov, new reference, 0.0[, flags]) of a sweep across a gap, ``pred`` the gap's prior
+        (pose, cov): the sweep matched from several window centres around the prediction
+        (`gaps.crossing_readings`); taken where readings agree within the prior (`gaps.consensus`,
+        `gaps.crossing_d2`), else the prediction, flagged ``gated`` and ``prior_dominated``. None where no
+        match is finite or the new reference is not. The new reference is the sweep in its own frame."""
+        crossed = self.readings_around(scan, twist, pred[0], ref_turn)
+        if crossed is None:
+            return None
+        new_ref = self._run_first(x)
+        if not np.all(np.isfinite(new_ref)):
+            return None
+        tol_m, tol_rad, sharp_m = gaps.agreement(self.profile)
+        agreed = gaps.consensus([c[0] for c in crossed], [c[1] for c in crossed], tol_m, tol_rad, sharp_m, prior=pred)
+        if agreed is None or gaps.crossing_d2(agreed[0], agreed[1], *pred) > self._prior.config.gate_d2:
+            # no centre agreed, or they agree on a motion the gap's prior rules out: keep the prediction
+            return pred[0], pred[1], new_ref, 0.0, {GATED, PRIOR_DOMINATED}
+        return agreed[0], agreed[1], new_ref, 0.0
+
+    def prior_step(self) -> tuple:
+        """(pose, cov, s): the motion prior's velocity as a step over its interval."""
+        p = self._prior
+        return p.velocity * p.interval_s, p.velocity_covariance * p.interval_s ** 2, p.interval_s
+
+    def readings_around(self, scan, twist, pose, ref_turn: float):
+        """The new sweep's readings (pose, cov; vehicle frame) with the window centred around ``pose``
+        (`gaps.crossing_readings`), the reference (drawn turned by ``ref_turn``) kept; None where no
+        match was finite."""
+        a_ref, mount = ref_turn, self.mount_yaw_rad
+        predicted = turn_frame(pose, None, -mount)[0]  # in the radar's frame, then the reference's drawn one
+        centre = to_xyyaw(se2(0.0, 0.0, -a_ref) @ se2(*predicted))
+
+        def residual_at(c):
+            drawn = self._sweep_input(scan, SweepMotion(twist=twist, frame_pose=tuple(to_xyyaw(invert(se2(*c))))))
+            out = self._run_pair(drawn, keep_reference=True)
+            return None if out is None else out[:2]
+
+        readings = gaps.crossing_readings(centre, residual_at, self.profile)
+        return None if readings is None else [turn_frame(*uncentre(*m, a_ref, 0.0), mount) for m in readings]
+
+    def match_centred(self, scan, x: np.ndarray, twist, interval_s: float, lead_s: float, ref_turn: float):
+        """(pose in the radar's frame, cov, new reference, its turn) with the new sweep drawn turned
+        by the predicted yaw, or None where the graph's output is not finite. A turn beyond
+        `MAX_TURN_RAD` re-draws the new reference in its own frame (a second graph call)."""
+        pred = self._prior.predict(interval_s, lead_s)
+        a_ref = ref_turn
+        a_new = next_turn(a_ref, None if pred is None else float(pred[0][2]))
+        drawn = x if a_new == 0.0 else self._sweep_input(scan, SweepMotion(twist=twist, frame_pose=(0.0, 0.0, a_new)))
+        out = self._run_pair(drawn)
+        if out is None:
+            return None
+        residual, residual_cov, new_ref = out
+        pose, cov = uncentre(residual, residual_cov, a_ref, a_new)
+        if abs(a_new) > MAX_TURN_RAD:
+            new_ref, a_new = self._run_first(x), 0.0
+            if not np.all(np.isfinite(new_ref)):
+                return None
+        return pose, cov, new_ref, a_new
