@@ -4,6 +4,7 @@ tightening turn and across speed changes?
     python benchmarks/gaps.py                                   # both shipped models; ≈ 3 min on 2 cores
     python benchmarks/gaps.py --models cart-0.4 --gaps 6 --cases bend,turn-in --seeds 10000-10003
     python benchmarks/gaps.py --markdown gaps-table.md
+    python benchmarks/gaps.py --compare-plain --seeds 10040-10041   # also each crossing drawn as recorded
     python benchmarks/gaps.py --cause --models cart-0.4 --seeds 10001   # why a crossing fails; ≈ 1 min
     python benchmarks/gaps.py --readout --cases bend --gaps 6 --seeds 10020-10021   # crossing vs a match at the truth
 
@@ -150,12 +151,13 @@ def _spread(items: list[int], count: int) -> list[int]:
     return [items[int(i)] for i in np.linspace(0, len(items) - 1, count).round()]
 
 
-def cross(model: str, c: Crossing) -> dict:
-    """Run the odometer (defaults) through one crossing; its error and flags."""
+def cross(model: str, c: Crossing, deskew_gaps: bool = True) -> dict:
+    """Run the odometer (defaults; ``deskew_gaps`` False: the crossing drawn as recorded, as before
+    it was de-skewed) through one crossing; its error and flags."""
     from radar_odom import RadarOdometer
     from radar_odom.se2 import wrap_angle
 
-    odo = RadarOdometer(model)
+    odo = RadarOdometer(model, deskew_gaps=deskew_gaps)
     est = [odo.step(s) for s in c.scans]
     gap_est = [e for e in est if e is not None and "gap" in e.flags]
     if len(gap_est) != 1:
@@ -262,6 +264,9 @@ def main(argv=None) -> int:
     ap.add_argument("--placements", type=int, default=3, help="gaps per case, seed and length (default: %(default)s)")
     ap.add_argument("--lead", type=int, default=5, help="sweeps before each gap (default: %(default)s)")
     ap.add_argument("--markdown", type=Path, default=None, help="write the table here too")
+    ap.add_argument("--compare-plain", action="store_true",
+                    help="each model also with its crossings drawn as recorded (RadarOdometer(deskew_gaps=False)), "
+                         "on the same crossings")
     ap.add_argument("--cause", action="store_true", help="the turn-in drive's single matches instead (see above)")
     ap.add_argument("--readout", action="store_true",
                     help="each crossing against one match centred on the truth (see above)")
@@ -293,9 +298,13 @@ def main(argv=None) -> int:
             args.markdown.write_text("\n".join(lines) + "\n")
         return 0
     results: dict = {}
-    for name, path in models.items():
+    runs = [(name, path, True) for name, path in models.items()]
+    if args.compare_plain:
+        runs = [r for name, path in models.items() for r in ((f"{name}, not de-skewed", path, False),
+                                                             (name, path, True))]
+    for name, path, deskew_gaps in runs:
         for c in todo:
-            results.setdefault((name, c.case, c.gap), []).append(cross(path, c))
+            results.setdefault((name, c.case, c.gap), []).append(cross(path, c, deskew_gaps))
     lines = table(results)
     print("\n".join(lines))
     print(f"\n({time.time() - t0:.0f} s)")

@@ -190,6 +190,18 @@ def crossing_centres(predicted, window_m: float, yaw_range_rad: float) -> list[n
     return [to_xyyaw(p @ se2(*o)) for o in offsets]
 
 
+def poses_agree(a, b, tol_m: float, tol_rad: float) -> bool:
+    """Whether two poses (x m, y m, yaw rad) lie within ``tol_m`` of each other and their yaws within ``tol_rad``."""
+    a, b = np.asarray(a, dtype=np.float64).reshape(3), np.asarray(b, dtype=np.float64).reshape(3)
+    return bool(math.hypot(a[0] - b[0], a[1] - b[1]) <= tol_m and abs(float(wrap_angle(a[2] - b[2]))) <= tol_rad)
+
+
+def crossing_velocity(pose, interval_s: float) -> np.ndarray:
+    """float64[3] (vx m/s, vy m/s, yaw rate rad/s; the frame of ``pose``'s start): the constant body
+    velocity that moves by ``pose`` (x m, y m, yaw rad) in ``interval_s`` (`se2_log` / interval)."""
+    return se2_log(np.asarray(pose, dtype=np.float64).reshape(3)) / float(interval_s)
+
+
 def agreement(profile) -> tuple[float, float, float]:
     """(m, rad, m) for `consensus` with a model of this `GridProfile`: crossings agree within
     `CONSENSUS_M` and `CONSENSUS_RAD` (or one grid cell and two yaw steps where those are coarser);
@@ -257,8 +269,7 @@ def consensus(poses, covariances, tol_m: float = CONSENSUS_M, tol_rad: float = C
     sharp = [j for j in range(len(p)) if is_sharp(c[j], max_sd_m)]
     groups = []
     for i in sharp:
-        g = tuple(j for j in sharp if math.hypot(p[i][0] - p[j][0], p[i][1] - p[j][1]) <= tol_m
-                  and abs(float(wrap_angle(p[i][2] - p[j][2]))) <= tol_rad)
+        g = tuple(j for j in sharp if poses_agree(p[i], p[j], tol_m, tol_rad))
         if len(g) >= int(min_count) and g not in groups:
             groups.append(g)
     if not groups:

@@ -140,6 +140,10 @@ class RadarOdometer:
             (constant over the sweep) before matching, so that the pose refers to the two sweeps'
             first-azimuth instants (Cartesian models; `radar_odom.odometry.deskew_stage`).
             ``reference_redraws`` counts the graph calls spent redrawing a reference.
+        deskew_gaps: True (default): a gap crossing the readings agree on is matched again with both
+            sweeps de-skewed by the crossing's own velocity (over a gap the sweeps' motion distortion
+            does not cancel as between consecutive ones; `MatchStage.deskew_crossing`, docs/gaps.md);
+            four more graph calls per agreed crossing. Independent of ``deskew``.
         sweep_period_s: the sensor's period (s) where known (``Sequence.time_base.period_s``, which
             `run_sequence` passes): an interval over 1.5 of it is a gap. None (default): 1.5 of the
             median of the last intervals (`radar_odom.odometry.gaps.SweepPeriod`).
@@ -164,12 +168,13 @@ class RadarOdometer:
                  on_gap: str = "raise", min_valid_fraction: float = 0.5,
                  motion_prior: bool | MotionPriorConfig = True, min_coverage: float = MIN_COVERAGE,
                  deskew: bool = DESKEW_DEFAULT, centre_yaw: bool | None = None, sweep_period_s: float | None = None,
-                 time_base=None):
+                 time_base=None, deskew_gaps: bool = True):
         if on_gap not in ("raise", "reset"):
             raise ConfigError(f"on_gap must be 'raise' or 'reset', got {on_gap!r}")
         self.max_gap_s = None if max_gap_s is None else config_number(max_gap_s, "max_gap_s", low=0.0, open_low=True)
-        if not isinstance(deskew, (bool, np.bool_)):
-            raise ConfigError(f"deskew must be True or False, got {deskew!r}")
+        for name, flag in (("deskew", deskew), ("deskew_gaps", deskew_gaps)):
+            if not isinstance(flag, (bool, np.bool_)):
+                raise ConfigError(f"{name} must be True or False, got {flag!r}")
         self.min_valid_fraction = config_number(min_valid_fraction, "min_valid_fraction", low=0.0, high=1.0)
         self.min_coverage = config_number(min_coverage, "min_coverage", low=0.0, high=1.0)
         if isinstance(motion_prior, MotionPriorConfig):
@@ -216,7 +221,8 @@ class RadarOdometer:
         self._match_stage = MatchStage(
             self.profile, self.info.mount_yaw_rad, self._movable, bool(centre_yaw) and self._movable, self._period,
             self._prior, lambda x, keep_reference=False: self._run_pair(x, keep_reference),
-            self._run_first, lambda scan, motion=None: self._sweep_input(scan, motion))
+            self._run_first, lambda scan, motion=None: self._sweep_input(scan, motion),
+            run_against=lambda x, reference: self._graph.match(x, reference, True), deskew_gaps=bool(deskew_gaps))
         self.reset()
 
     @property
@@ -260,6 +266,7 @@ class RadarOdometer:
         self._ref_feed: np.ndarray | None = None  # state (stream form) or sweep input (pair form)
         self._ref_index = -1  # trajectory index of the sweep ``_ref_feed`` belongs to
         self._ref_turn = 0.0  # turn (rad) the reference was drawn with (`radar_odom.odometry.centring`)
+        self._ref_scan: RadarScan | None = None  # the reference sweep as recorded (a gap crossing redraws it)
         self._deskew_stage.reset()  # the reference as recorded, its twist, the motion de-skew averages
         self._forget_motion()
         self._times.reset()  # the sweep times the match decided
@@ -401,6 +408,7 @@ class RadarOdometer:
         flags |= out[4] if len(out) > 4 else set()  # a gap crossing's verdict (`MatchStage.cross_gap`)
         est = self._accept(pose_ref, cov, new_ref, ts, dt_s, odo_rel, flags, ref_turn=new_turn)
         self._deskew_stage.keep_reference(scan, twist)
+        self._ref_scan = scan
         return est
 
     def _start_stream(self, scan: RadarScan, prepared, problem, ts: int) -> None:
@@ -426,6 +434,7 @@ class RadarOdometer:
         self._ref_feed = self._run_first(self._input(scan, prepared, twist))
         self._ref_turn = 0.0
         self._deskew_stage.keep_reference(scan, twist)
+        self._ref_scan = scan
         self._set_reference(index)
 
     # --- pieces ---------------------------------------------------------------------------
@@ -481,7 +490,8 @@ class RadarOdometer:
         """The predict and match stages (`MatchStage.match`): (pose, cov, new reference, its turn[, flags])
         of the new sweep against the reference, or None if non-finite."""
         ref_ts = self._stamps[self._ref_index]
-        return self._match_stage.match(scan, x, twist, (ts - ref_ts) * 1e-6, self._lead_s(ref_ts), self._ref_turn)
+        return self._match_stage.match(scan, x, twist, (ts - ref_ts) * 1e-6, self._lead_s(ref_ts), self._ref_turn,
+                                       ref_scan=self._ref_scan)
 
     def _sweep_time(self, scan: RadarScan, ts: int) -> int:
         """The time stage's whole periods: where the stamps cannot place this sweep (a drop before it,

@@ -1,0 +1,117 @@
+"""The gap crossing's de-skew (`MatchStage.cross_gap` / `deskew_crossing`) against a stand-in graph.
+
+The graph is replaced by callables that "measure" a chosen pose whatever the window centre (the residual
+M = truth ∘ centre⁻¹, so `gaps.compose_residual` gives the truth back), one for the reference as recorded
+(``run_pair``) and one for a reference redrawn de-skewed (``run_against``), so the choices the crossing
+makes — de-skewed readings, the fallback to the readings as recorded, the refinement and its limits —
+are checked without a model.
+"""
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+
+from radar_odom.odometry import gaps as G
+from radar_odom.odometry.match_stage import CROSSING_DESKEW_ROUNDS, MatchStage
+from radar_odom.odometry.motion_prior import GATED, MotionPriorConfig
+from radar_odom.profiles import get_profile
+from radar_odom.se2 import se2, to_xyyaw
+
+PROFILE = get_profile("cart-0.4")
+INTERVAL_S = 1.75  # a 6-sweep gap at 4 Hz
+TRUTH = np.array([10.4, -1.2, math.radians(-13.0)])  # the motion over it: a 13° bend
+PRED = (np.array([10.0, -0.9, math.radians(-11.0)]), np.diag([1.0, 1.0, math.radians(15.0) ** 2]))
+SCAN = SimpleNamespace(timestamps_us=np.linspace(0, 249_000, 400).astype(np.int64))  # one 0.25 s sweep
+REF_SCAN = SimpleNamespace(timestamps_us=SCAN.timestamps_us.copy())
+COV = np.diag([0.05, 0.05, 1e-5])  # a sharp reading
+
+
+def measuring(pose):
+    """A graph match that reads ``pose`` from any window centre: (residual, cov, state)."""
+    def run(drawn):
+        residual = to_xyyaw(se2(*pose) @ se2(*drawn.frame_pose))
+        return residual, COV.copy(), np.zeros(3)
+    return run
+
+
+def stage(recorded, deskewed, calls):
+    """A `MatchStage` on stand-ins: ``recorded`` / ``deskewed`` map the drawn sweep (its `SweepMotion`) to
+    the graph's (residual, cov, state) against the reference as recorded / redrawn; ``calls`` collects
+    what was drawn and against which reference."""
+    def run_pair(drawn, keep_reference=False):
+        calls.append(("recorded", drawn))
+        return recorded(drawn)
+
+    def run_against(drawn, reference):
+        calls.append(("deskewed", drawn, reference))
+        return deskewed(drawn)
+
+    def run_first(drawn):
+        calls.append(("first", drawn))
+        return np.ones(4)
+
+    return MatchStage(PROFILE, 0.0, True, False, None, SimpleNamespace(config=MotionPriorConfig()), run_pair,
+                      run_first, lambda scan, motion=None: motion, run_against=run_against, deskew_gaps=True)
+
+
+def test_an_agreed_crossing_is_refined_by_the_de_skewed_match():
+    # the de-skewed graph reads a pose 0.15 m and 0.3° from the recorded one: within twice the agreement,
+    # so the crossing takes it (the consensus' covariance kept)
+    refined = TRUTH + np.array([0.15, 0.0, math.radians(0.3)])
+    calls = []
+    out = stage(measuring(TRUTH + [0.5, 0.3, 0.02]), measuring(refined), calls).cross_gap(
+        SCAN, "x", None, PRED, 0.0, REF_SCAN, INTERVAL_S)
+    assert len(out) == 4  # not gated
+    np.testing.assert_allclose(out[0], refined, atol=1e-9)
+    assert out[2] is not None and out[3] == 0.0
+    # the readings were drawn de-skewed (a twist), never against the reference as recorded
+    assert not [c for c in calls if c[0] == "recorded"]
+    drawn = [c[1] for c in calls if c[0] == "deskewed"]
+    assert drawn and all(d.twist is not None for d in drawn)
+    # the refinement's twist is the crossing's own velocity, yaw rate included
+    assert drawn[-1].twist[2] == np.float64(G.crossing_velocity(refined, INTERVAL_S)[2]).item()
+    redraws = [c for c in calls if c[0] == "first" and getattr(c[1], "twist", None) is not None]
+    assert len(redraws) == 1 + CROSSING_DESKEW_ROUNDS  # the prediction's twist, then one per round
+
+
+def test_readings_that_disagree_once_de_skewed_fall_back_to_the_readings_as_recorded():
+    def scattered(drawn):  # one residual from every centre: each reading lands elsewhere, no two agree
+        return np.array([4.0, 4.0, 0.1]), COV.copy(), np.zeros(3)
+
+    calls = []
+    out = stage(measuring(TRUTH), scattered, calls).cross_gap(SCAN, "x", None, PRED, 0.0, REF_SCAN, INTERVAL_S)
+    assert len(out) == 4, out  # agreed on the readings as recorded, not gated
+    np.testing.assert_allclose(out[0], TRUTH, atol=1e-9)  # the refinement found nothing near it: kept as agreed
+    assert [c for c in calls if c[0] == "recorded"]
+
+
+def test_nothing_agreeing_either_way_keeps_the_prediction_gated():
+    def scattered(drawn):
+        return np.array([4.0, 4.0, 0.1]), COV.copy(), np.zeros(3)
+
+    out = stage(scattered, scattered, []).cross_gap(SCAN, "x", None, PRED, 0.0, REF_SCAN, INTERVAL_S)
+    assert GATED in out[4]
+    np.testing.assert_allclose(out[0], PRED[0])
+
+
+def test_a_refinement_that_jumps_to_another_peak_is_not_taken():
+    # de-skewed readings agree on the truth, but the refining match then reads 1.5 m away: another peak
+    state = {"n": 0}
+
+    def deskewed(drawn):
+        state["n"] += 1
+        far = TRUTH + ([1.5, 0.0, 0.0] if drawn.twist is not None and state["n"] > 9 else 0.0)
+        return measuring(far)(drawn)
+
+    out = stage(measuring(TRUTH), deskewed, []).cross_gap(SCAN, "x", None, PRED, 0.0, REF_SCAN, INTERVAL_S)
+    assert len(out) == 4
+    np.testing.assert_allclose(out[0], TRUTH, atol=1e-9)
+
+
+def test_without_the_reference_sweep_the_crossing_is_as_before():
+    calls = []
+    out = stage(measuring(TRUTH), measuring(TRUTH + 1.0), calls).cross_gap(SCAN, "x", None, PRED, 0.0)
+    np.testing.assert_allclose(out[0], TRUTH, atol=1e-9)
+    assert not [c for c in calls if c[0] == "deskewed"]
