@@ -114,12 +114,13 @@ class MatchStage:
         crossing is matched again de-skewed (`deskew_crossing`) where ``deskew_gaps`` and ``ref_scan``
         (the reference as recorded) and ``interval_s`` are given. None where no match is finite or the
         new reference is not. The new reference is the sweep in its own frame (drawn with ``twist``)."""
+        deskew = self.deskew_gaps and ref_scan is not None and bool(interval_s)
         drawn_with, reference = twist, None
-        if self.deskew_gaps and ref_scan is not None and interval_s:
+        if deskew:
             # the readings drawn de-skewed by the prediction's velocity (the reference redrawn with it)
             radar = turn_frame(np.asarray(pred[0], dtype=np.float64), None, -self.mount_yaw_rad)[0]
             predicted = deskew_twist(gaps.crossing_velocity(radar, interval_s), scan, self.profile)
-            reference = None if predicted is None else self._deskewed_reference(ref_scan, predicted, ref_turn)
+            reference = None if predicted is None else self.draw_reference(ref_scan, predicted, ref_turn)
             drawn_with = twist if reference is None else predicted
         agreed = self._agreed(self.readings_around(scan, drawn_with, pred[0], ref_turn, reference), pred)
         if reference is not None and (agreed is None or agreed is NO_AGREEMENT):
@@ -133,7 +134,7 @@ class MatchStage:
         if agreed is NO_AGREEMENT:
             # no centre agreed, or they agree on a motion the gap's prior rules out: keep the prediction
             return pred[0], pred[1], new_ref, 0.0, {GATED, PRIOR_DOMINATED}
-        if self.deskew_gaps and ref_scan is not None and interval_s:
+        if deskew:
             pose = self.deskew_crossing(scan, ref_scan, agreed[0], interval_s, ref_turn)
             if pose is not None and gaps.crossing_d2(pose, agreed[1], *pred) <= self._prior.config.gate_d2:
                 return pose, agreed[1], new_ref, 0.0
@@ -169,7 +170,7 @@ class MatchStage:
         start = radar = turn_frame(np.asarray(pose, dtype=np.float64), None, -mount)[0]  # the radar's frame
         for _ in range(CROSSING_DESKEW_ROUNDS):
             twist = deskew_twist(gaps.crossing_velocity(radar, interval_s), scan, self.profile)
-            reference = None if twist is None else self._deskewed_reference(ref_scan, twist, a_ref)
+            reference = None if twist is None else self.draw_reference(ref_scan, twist, a_ref)
             if reference is None:
                 return None
             centre = to_xyyaw(se2(0.0, 0.0, -a_ref) @ se2(*radar))  # in the reference's drawn frame
@@ -183,9 +184,9 @@ class MatchStage:
             return None  # a de-skewed match that moved that far found another peak, not the same one sharper
         return turn_frame(radar, None, mount)[0]
 
-    def _deskewed_reference(self, ref_scan, twist, ref_turn: float):
+    def draw_reference(self, ref_scan, twist, ref_turn: float):
         """The reference state of ``ref_scan`` drawn with ``twist`` (and turned by ``ref_turn``), or None
-        where the graph's output is not finite (one graph call)."""
+        where the graph's output is not finite (one graph call). Also the de-skew stage's redraw."""
         turn = (0.0, 0.0, ref_turn) if ref_turn else None
         reference = self._run_first(self._sweep_input(ref_scan, SweepMotion(twist=twist, frame_pose=turn)))
         return reference if np.all(np.isfinite(reference)) else None

@@ -464,9 +464,8 @@ class RadarOdometer:
     def _redraw_reference(self, ref_scan: RadarScan, twist) -> bool:
         """The de-skew stage's graph call: the reference sweep drawn again with ``twist`` (and its turn)
         becomes the reference; False (the reference kept) where the graph's output is not finite."""
-        turn = (0.0, 0.0, self._ref_turn) if self._ref_turn else None
-        feed = self._run_first(self._sweep_input(ref_scan, SweepMotion(twist=twist, frame_pose=turn)))
-        if not np.all(np.isfinite(feed)):
+        feed = self._match_stage.draw_reference(ref_scan, twist, self._ref_turn)
+        if feed is None:
             return False
         self._ref_feed = feed
         return True
