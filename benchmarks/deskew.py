@@ -26,8 +26,9 @@ the two sweeps drawn with different forward speeds, the reference faster than th
 the drop a constant deceleration would give over the interval (a constant-velocity de-skew
 cannot know it from one pair).
 ``radiate-cost``: what de-skew costs on the shared RADIATE drive (280 sweeps; its accuracy, de-skew
-off and on, is `benchmarks/real_drive.py`'s): the reference redraws (extra graph calls) and the wall
-time per sweep, the defaults.
+off and on, is `benchmarks/real_drive.py`'s): the reference redraws (extra graph calls), the moving sampling
+maps built and reused, and the wall time per sweep, the defaults: de-skew off, on with its maps rebuilt every
+sweep (as before the map cache) and on, interleaved over ``--rounds`` rounds in one process.
 The real sweeps are non-commercial data: read where they lie, never copied.
 """
 from __future__ import annotations
@@ -159,9 +160,13 @@ def part_oxford(models: dict, args) -> list[str]:
 
 
 def part_radiate_cost(models: dict, args) -> list[str]:
-    """What de-skew costs on the shared RADIATE drive (its accuracy: benchmarks/real_drive.py)."""
+    """What de-skew costs on the shared RADIATE drive (its accuracy: benchmarks/real_drive.py): per model, de-skew
+    off, on with its sampling maps rebuilt every sweep (the cache of moving maps emptied at once: how de-skew ran
+    before the cache) and on as shipped, stepped interleaved for ``--rounds`` rounds in this one process; medians
+    over the rounds and the ratio to de-skew off per round (median, range)."""
     import warnings
 
+    from radar_odom import polar
     from radar_odom.io import read_sequence
 
     seq_dir = REAL / RADIATE_DRIVE
@@ -170,14 +175,33 @@ def part_radiate_cost(models: dict, args) -> list[str]:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the drive's late stamps, put back on the period (real_drive.py says so)
         scans = [f.scan for f in read_sequence(seq_dir)]
-    lines = [f"{len(scans)} sweeps, the defaults (motion prior on)", "",
-             "| model | de-skew | reference redraws (extra graph calls) | ms / sweep |", "|---|---|---:|---:|"]
+    lines = [f"{len(scans)} sweeps, the defaults (motion prior on), {args.rounds} interleaved rounds", "",
+             "| model | de-skew | reference redraws (extra graph calls) | moving maps built / reused per drive "
+             "| ms / sweep (median) | ratio to off (median, range) |", "|---|---|---:|---:|---:|---:|"]
     print("\n".join(lines), flush=True)
-    for name, model in models.items():
-        for deskew in (False, True):
-            _, redraws, per = run(model, scans, deskew, prior=True)
-            lines.append(f"| {name} | {'on' if deskew else 'off'} | {redraws} | {1e3 * per:.0f} |")
-            print(lines[-1], flush=True)
+    size = polar._MOVING_CACHE.size
+    variants = (("off", False, size), ("on, maps rebuilt every sweep", True, 0), ("on", True, size))
+    try:
+        for name, model in models.items():
+            per = {v[0]: [] for v in variants}
+            redraws, maps = {}, {}
+            for _ in range(args.rounds):
+                for label, deskew, cache_size in variants:
+                    polar.clear_map_cache()
+                    polar._MOVING_CACHE.size = cache_size  # 0: every entry evicted at once, maps built per sweep
+                    _, redraws[label], s_per = run(model, scans, deskew, prior=True)
+                    info = polar.moving_map_cache_info()
+                    maps[label] = f"{info['builds']} / {info['hits']}"
+                    per[label].append(s_per)
+            off = np.array(per["off"])
+            for label, _, _ in variants:
+                r = np.array(per[label]) / off
+                lines.append(f"| {name} | {label} | {redraws[label]} | {maps[label]} "
+                             f"| {1e3 * np.median(per[label]):.1f} "
+                             f"| {np.median(r):.2f} ({r.min():.2f}-{r.max():.2f}) |")
+                print(lines[-1], flush=True)
+    finally:
+        polar._MOVING_CACHE.size = size
     return lines
 
 
@@ -190,6 +214,7 @@ def main(argv=None) -> int:
     ap.add_argument("--speeds", default="10,10", help="m/s, one per scenario (default: %(default)s)")
     ap.add_argument("--seeds", default="10100,10101,10102", help="fresh world seeds, >= 10000 (default: %(default)s)")
     ap.add_argument("--frames", type=int, default=24, help="sweeps per drive (default: %(default)s)")
+    ap.add_argument("--rounds", type=int, default=3, help="interleaved rounds of radiate-cost (default: %(default)s)")
     ap.add_argument("--decelerations", default="0,1,2", help="m/s², the Oxford diagnostic (default: %(default)s)")
     args = ap.parse_args(argv)
     args.scenarios = [s for s in args.scenarios.split(",") if s]

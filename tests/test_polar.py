@@ -256,6 +256,57 @@ def test_cache_evicts_least_recently_used():
     assert P.map_cache_info()["builds"] == size + 2
 
 
+def _timed_scan(power, az, row_times_us):
+    return RadarScan.from_arrays(np.asarray(row_times_us, dtype=np.int64), az, power,
+                                 range_resolution_m=0.0432, range_offset_m=0.0)
+
+
+def test_moving_maps_are_reused_for_the_same_twist_and_row_times(monkeypatch):
+    """De-skew draws both sweeps of a match with one twist: the second drawing reuses the maps, and the image
+    is the one freshly built maps draw; another twist, another frame or row times off by more than the
+    reuse tolerance build new maps."""
+    calls = []
+    real = P.moving_sample_maps
+    monkeypatch.setattr(P, "moving_sample_maps", lambda *a, **k: calls.append(a) or real(*a, **k))
+    rng = np.random.default_rng(1)
+    az = uniform_az(400)
+    times = 1_000_000 + np.arange(400, dtype=np.int64) * 625  # 0.25 s sweep
+    twist = (10.0, 0.2, 0.1)
+    a = _timed_scan(rng.random((400, 300), dtype=np.float32), az, times)
+    b = _timed_scan(rng.random((400, 300), dtype=np.float32), az, times + 250_000)  # next sweep, same row times
+    img_a = P.polar_to_cartesian(a, 0.4, 64, twist=twist)
+    img_b = P.polar_to_cartesian(b, 0.4, 64, twist=twist)
+    assert len(calls) == 1 and P.moving_map_cache_info() == {"builds": 1, "hits": 1, "entries": 1, "max_entries": 4}
+    P.clear_map_cache()
+    np.testing.assert_array_equal(img_b, P.polar_to_cartesian(b, 0.4, 64, twist=twist))  # fresh maps, same image
+    assert not np.array_equal(img_a, img_b)
+    assert len(calls) == 2
+    P.polar_to_cartesian(b, 0.4, 64, twist=(10.0, 0.2, 0.11))  # another twist
+    P.polar_to_cartesian(b, 0.4, 64, twist=twist, frame_pose=(1.0, 0.0, 0.0))  # another frame
+    assert len(calls) == 4
+    # row times jittering by 2 µs move a point 0.02 mm at this twist: reused; 2 ms move it 2 cm: rebuilt
+    jitter = np.zeros(400, dtype=np.int64)
+    jitter[200:] = 2  # rows from 200 on late (times stay increasing)
+    P.polar_to_cartesian(_timed_scan(b.power, az, times + jitter), 0.4, 64, twist=twist)
+    assert len(calls) == 4
+    P.polar_to_cartesian(_timed_scan(b.power, az, times + 1000 * jitter), 0.4, 64, twist=twist)
+    assert len(calls) == 5
+
+
+def test_moving_map_reuse_tolerance_is_a_hundredth_of_a_pixel():
+    tau = np.linspace(0.0, 0.25, 400)
+    res, w = 0.4, 256
+    fast = (20.0, 0.0, 0.0)  # 20 m/s: 0.004 m (1 % of 0.4 m) takes 200 µs
+    assert P._times_interchangeable(tau, tau + 1.9e-4, fast, res, w)
+    assert not P._times_interchangeable(tau, tau + 2.1e-4, fast, res, w)
+    # a yaw rate moves the grid's corner: 0.5 rad/s at 72 m (corner of 256 px at 0.4 m) is ~36 m/s
+    corner_m = math.sqrt(2.0) * P.half_extent_m(res, w)
+    limit_s = 0.01 * res / (0.5 * corner_m)
+    assert P._times_interchangeable(tau, tau + 0.9 * limit_s, (0.0, 0.0, 0.5), res, w)
+    assert not P._times_interchangeable(tau, tau + 1.1 * limit_s, (0.0, 0.0, 0.5), res, w)
+    assert not P._times_interchangeable(tau, tau[:-1], fast, res, w)  # another row count
+
+
 # ----------------------------------------------------------------------------- bad input
 def test_bad_arrays_get_typed_errors():
     az = uniform_az(10)

@@ -22,7 +22,11 @@ the image is to show, `moving_sample_maps` finds for each Cartesian pixel the az
 that point and where, so the image is the scene as seen from the sensor at that one instant.
 The same maps can also place the image in a frame moved from the sensor's (``frame_pose``): the
 odometer uses it to centre a match on the motion predicted over a long gap. These maps depend on
-the motion, so they are built per sweep (`moving_sample_maps`, a few ms) and not cached.
+the motion; building them takes ~10x the static maps' time (`moving_sample_maps`), so the last few
+are kept too (`moving_map_cache_info`): the odometer draws both sweeps of a match with one twist and
+keeps it until the velocity moves a pixel, so consecutive sweeps of one geometry reuse them. A
+sweep's row times are compared, not hashed: they may jitter from sweep to sweep (Oxford), and maps
+are reused only while that jitter moves no point by more than `MOVING_MAP_REUSE_FRACTION_PX`.
 """
 from __future__ import annotations
 
@@ -38,6 +42,10 @@ from .errors import ConfigError, GridError, ScanFormatError
 
 TWO_PI = 2.0 * math.pi
 _CACHE_SIZE = 8
+_MOVING_CACHE_SIZE = 4
+# Cached moving maps serve a sweep whose row times differ from theirs by at most the time in which the
+# twist moves a point of the grid this fraction of a pixel: far below what the bilinear draw resolves.
+MOVING_MAP_REUSE_FRACTION_PX = 0.01
 
 
 # --------------------------------------------------------------------------- pure geometry
@@ -257,14 +265,82 @@ def _azimuth_fingerprint(az_rad: np.ndarray) -> bytes:
 _CACHE = _MapCache(_CACHE_SIZE)
 
 
+class _MovingMapCache:
+    """The last few `moving_sample_maps` results, keyed by geometry, grid, twist and frame; an entry serves
+    a sweep whose row times are within the reuse tolerance of its own (module docstring); thread-safe."""
+
+    def __init__(self, size: int):
+        self.size = size
+        self._entries: OrderedDict = OrderedDict()
+        self._lock = threading.Lock()
+        self.builds = 0
+        self.hits = 0
+
+    def get(self, az_rad, azimuth_times_s, twist, frame_pose, num_bins, range_res, range_off, resolution_m,
+            width_px):
+        tau = np.asarray(azimuth_times_s, dtype=np.float64)
+        key = (
+            int(az_rad.size), int(num_bins), float(range_res), float(range_off), _azimuth_fingerprint(az_rad),
+            float(resolution_m), int(width_px),
+            None if twist is None else tuple(float(v) for v in twist),
+            None if frame_pose is None else tuple(float(v) for v in frame_pose),
+        )
+        with self._lock:
+            entry = self._entries.get(key)
+            if entry is not None and _times_interchangeable(entry[0], tau, twist, resolution_m, width_px):
+                self._entries.move_to_end(key)
+                self.hits += 1
+                return entry[1]
+        maps = moving_sample_maps(az_rad, tau, twist, frame_pose, num_bins, range_res, range_off,
+                                  resolution_m, width_px)
+        with self._lock:
+            self._entries[key] = (tau.copy(), maps)
+            self._entries.move_to_end(key)
+            while len(self._entries) > self.size:
+                self._entries.popitem(last=False)
+            self.builds += 1
+        return maps
+
+    def clear(self):
+        with self._lock:
+            self._entries.clear()
+            self.builds = 0
+            self.hits = 0
+
+
+def _times_interchangeable(tau_a_s: np.ndarray, tau_b_s: np.ndarray, twist, resolution_m: float,
+                           width_px: int) -> bool:
+    """True where drawing with row times ``tau_b_s`` instead of ``tau_a_s`` (float[A], s) moves no point of the
+    grid by `MOVING_MAP_REUSE_FRACTION_PX` of a pixel under ``twist`` (vx m/s, vy m/s, yaw rate rad/s; None: still):
+    the largest time difference times the fastest point's speed (translation plus the yaw at the grid's corner)."""
+    if tau_a_s.shape != tau_b_s.shape:
+        return False
+    if twist is None:
+        return True
+    vx, vy, w = (float(v) for v in twist)
+    speed_m_s = math.hypot(vx, vy) + abs(w) * math.sqrt(2.0) * half_extent_m(resolution_m, width_px)
+    worst_s = float(np.max(np.abs(tau_a_s - tau_b_s))) if tau_a_s.size else 0.0
+    return worst_s * speed_m_s <= MOVING_MAP_REUSE_FRACTION_PX * float(resolution_m)
+
+
+_MOVING_CACHE = _MovingMapCache(_MOVING_CACHE_SIZE)
+
+
+def moving_map_cache_info() -> dict:
+    """``{"builds", "hits", "entries", "max_entries"}`` of the de-skew / moved-frame map cache."""
+    c = _MOVING_CACHE
+    return {"builds": c.builds, "hits": c.hits, "entries": len(c._entries), "max_entries": c.size}
+
+
 def map_cache_info() -> dict:
     """``{"builds", "hits", "entries", "max_entries"}`` of the sampling-map cache."""
     return {"builds": _CACHE.builds, "hits": _CACHE.hits, "entries": len(_CACHE._entries), "max_entries": _CACHE.size}
 
 
 def clear_map_cache() -> None:
-    """Forget every cached map (and reset the counters)."""
+    """Forget every cached map, static and moving (and reset the counters)."""
     _CACHE.clear()
+    _MOVING_CACHE.clear()
 
 
 # --------------------------------------------------------------------------- conversion
@@ -309,8 +385,8 @@ def polar_to_cartesian(scan, resolution_m: float, width_px: int, near_range_m: f
     az = sampling_azimuths(scan)
     maps = None
     if twist is not None or frame_pose is not None:
-        maps = moving_sample_maps(az, azimuth_times_s(scan), twist, frame_pose, scan.num_bins,
-                                  scan.range_resolution_m, scan.range_offset_m, resolution_m, width_px)
+        maps = _MOVING_CACHE.get(az, azimuth_times_s(scan), twist, frame_pose, scan.num_bins,
+                                 scan.range_resolution_m, scan.range_offset_m, resolution_m, width_px)
     return _remap(
         fill_dropped_rows(scan.power, az, scan.valid), az, scan.range_resolution_m, scan.range_offset_m,
         resolution_m, width_px, near_range_m, out, source=scan.source, maps=maps,
