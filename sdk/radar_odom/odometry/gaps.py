@@ -21,7 +21,8 @@ own, scaled, plus what sustained accelerations of a road vehicle do over the gap
 (`crossing_centres`), and once more centred on each sharp reading it gave (`is_sharp`: a true peak
 is found again where it is looked for); a match whose residual lies at the edge of the search
 window is dropped (`at_window_edge`: a peak clipped by the window, nothing found inside it), and
-the crossing is taken only where at least two of these matches agree on the pose (`consensus`;
+readings a car could not have driven are dropped (`off_the_arc`: far sideways of the arc with their
+yaw), and the crossing is taken only where at least two of these matches agree on the pose (`consensus`;
 the largest such group, of equal ones the nearest the gap's prior) and that pose lies within the
 χ² gate of the prior (`crossing_d2`).
 Otherwise the odometer keeps the prediction with the prior's covariance, flagged ``"gated"``. Why
@@ -67,6 +68,18 @@ CONSENSUS_COUNT = 2
 # cells (translation σ; 0.8 m for cart-0.4): the wrong peaks of a tightening turn (docs/gaps.md)
 # spread 0.9–4.6 m along the road, the right ones mostly 0.3–0.5 m (4 cells let wrong pairs in).
 SHARP_CELLS = 2.0
+# A road vehicle crosses a gap along something close to an arc: a rear axle following a circle ends
+# on the chord turned by half its yaw, so its sideways distance from that chord is zero. What a sensor
+# on a real car adds: its lever arm ahead of the axle sways by about arm × yaw (`ARC_LEVER_M`, a
+# roof-mounted radar is within 2.5 m of it), and a turn that tightens over the gap (a clothoid from
+# straight turns its chord by a third of the yaw, not half) about |x| × yaw / 6 (`ARC_CHORD_FRACTION`
+# allows a quarter); `ARC_BASE_M` for the rest (the simulated tightening turn that ends 16° round sits
+# 0.13 m off; its wrong reading sits 4.0 m off, docs/gaps.md). A reading further off than that plus
+# three of its own σ is not a motion the car made (`off_the_arc`) and does not count toward a crossing.
+ARC_BASE_M = 0.5
+ARC_LEVER_M = 2.5
+ARC_CHORD_FRACTION = 0.25
+ARC_SD = 3.0
 # A residual beyond this fraction of the search window's half-width (translation, each axis) or
 # of its yaw range sits on the window's edge: the softmax read-out of a peak outside the window.
 EDGE_FRACTION = 0.85
@@ -200,6 +213,27 @@ def crossing_velocity(pose, interval_s: float) -> np.ndarray:
     """float64[3] (vx m/s, vy m/s, yaw rate rad/s; the frame of ``pose``'s start): the constant body
     velocity that moves by ``pose`` (x m, y m, yaw rad) in ``interval_s`` (`se2_log` / interval)."""
     return se2_log(np.asarray(pose, dtype=np.float64).reshape(3)) / float(interval_s)
+
+
+def arc_offset(pose) -> tuple[float, np.ndarray]:
+    """(m, float64[3]): how far the end of ``pose`` (x m, y m, yaw rad; vehicle frame, x forward) lies
+    sideways of the chord a circular arc with that yaw would end on (the line through the start at
+    yaw/2: ``y·cos(yaw/2) − x·sin(yaw/2)``, positive to +y), and its gradient in (x, y, yaw)."""
+    x, y, yaw = (float(v) for v in np.asarray(pose, dtype=np.float64).reshape(3))
+    c, s = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
+    return y * c - x * s, np.array([-s, c, -0.5 * (x * c + y * s)])
+
+
+def off_the_arc(pose, cov) -> bool:
+    """Whether a crossing ``pose`` (x m, y m, yaw rad; vehicle frame) with covariance ``cov`` [3, 3] lies
+    sideways of the arc a road vehicle would drive with that yaw by more than the lever arm, a tightening
+    turn and the rest allow plus `ARC_SD` of its own σ there (`ARC_BASE_M` and the constants beside it)."""
+    offset, grad = arc_offset(pose)
+    p = np.asarray(pose, dtype=np.float64).reshape(3)
+    x, yaw = float(p[0]), abs(float(wrap_angle(p[2])))
+    sd = math.sqrt(max(float(grad @ np.asarray(cov, dtype=np.float64).reshape(3, 3) @ grad), 0.0))
+    allowed = ARC_BASE_M + (ARC_LEVER_M + ARC_CHORD_FRACTION * abs(x)) * yaw + ARC_SD * sd
+    return abs(offset) > allowed
 
 
 def agreement(profile) -> tuple[float, float, float]:

@@ -141,10 +141,12 @@ class MatchStage:
         return agreed[0], agreed[1], new_ref, 0.0
 
     def _agreed(self, crossed, pred):
-        """The readings' consensus (pose, cov, members) within the gap's prior ``pred``; `NO_AGREEMENT` where
-        no centre agreed or they agree on a motion the prior rules out; None where no match was finite."""
+        """The readings' consensus (pose, cov, members) within the gap's prior ``pred``, readings off a road
+        vehicle's arc left out (`gaps.off_the_arc`); `NO_AGREEMENT` where no centre agreed or they agree on a
+        motion the prior rules out; None where no match was finite."""
         if crossed is None:
             return None
+        crossed = [c for c in crossed if not gaps.off_the_arc(c[0], c[1])]  # not a motion a car makes
         tol_m, tol_rad, sharp_m = gaps.agreement(self.profile)
         agreed = gaps.consensus([c[0] for c in crossed], [c[1] for c in crossed], tol_m, tol_rad, sharp_m, prior=pred)
         if agreed is None or gaps.crossing_d2(agreed[0], agreed[1], *pred) > self._prior.config.gate_d2:
