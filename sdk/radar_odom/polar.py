@@ -215,8 +215,8 @@ def near_range_bins(near_range_m: float, range_resolution_m: float, range_offset
 
 
 # --------------------------------------------------------------------------- map cache
-class _MapCache:
-    """LRU of (map_bin, map_row, bins_used) per sweep geometry and grid; thread-safe."""
+class _LRU:
+    """A small thread-safe LRU of built sampling maps, with build and hit counts (`map_cache_info`)."""
 
     def __init__(self, size: int):
         self.size = size
@@ -225,22 +225,18 @@ class _MapCache:
         self.builds = 0
         self.hits = 0
 
-    def get(self, az_rad: np.ndarray, num_bins, range_res, range_off, resolution_m, width_px):
-        key = (
-            int(az_rad.size), int(num_bins), float(range_res), float(range_off),
-            _azimuth_fingerprint(az_rad), float(resolution_m), int(width_px),
-        )
+    def _lookup(self, key, usable=lambda entry: True):
+        """The entry under ``key`` where ``usable(entry)`` (counted as a hit, made the newest), else None."""
         with self._lock:
             entry = self._entries.get(key)
-            if entry is not None:
-                self._entries.move_to_end(key)
-                self.hits += 1
-                return entry
-        map_bin, map_row = cartesian_sample_maps(az_rad, num_bins, range_res, range_off, resolution_m, width_px)
-        # bilinear sampling at u reads bins floor(u) and floor(u)+1: copying only those columns of
-        # the (long) polar rows gives the same output for a fraction of the copy
-        bins_used = int(min(num_bins, math.floor(float(map_bin.max())) + 2))
-        entry = (map_bin, map_row, bins_used)
+            if entry is None or not usable(entry):
+                return None
+            self._entries.move_to_end(key)
+            self.hits += 1
+            return entry
+
+    def _store(self, key, entry):
+        """Keep ``entry`` under ``key`` as the newest (counted as a build), the oldest beyond ``size`` evicted."""
         with self._lock:
             self._entries[key] = entry
             self._entries.move_to_end(key)
@@ -249,11 +245,35 @@ class _MapCache:
             self.builds += 1
         return entry
 
+    def info(self) -> dict:
+        return {"builds": self.builds, "hits": self.hits, "entries": len(self._entries), "max_entries": self.size}
+
     def clear(self):
         with self._lock:
             self._entries.clear()
             self.builds = 0
             self.hits = 0
+
+
+class _MapCache(_LRU):
+    """(map_bin, map_row, bins_used) per sweep geometry and grid."""
+
+    def get(self, az_rad: np.ndarray, num_bins, range_res, range_off, resolution_m, width_px):
+        key = _geometry_key(az_rad, num_bins, range_res, range_off, resolution_m, width_px)
+        entry = self._lookup(key)
+        if entry is not None:
+            return entry
+        map_bin, map_row = cartesian_sample_maps(az_rad, num_bins, range_res, range_off, resolution_m, width_px)
+        # bilinear sampling at u reads bins floor(u) and floor(u)+1: copying only those columns of
+        # the (long) polar rows gives the same output for a fraction of the copy
+        bins_used = int(min(num_bins, math.floor(float(map_bin.max())) + 2))
+        return self._store(key, (map_bin, map_row, bins_used))
+
+
+def _geometry_key(az_rad: np.ndarray, num_bins, range_res, range_off, resolution_m, width_px) -> tuple:
+    """What sampling maps depend on besides the motion: the sweep's geometry and the grid."""
+    return (int(az_rad.size), int(num_bins), float(range_res), float(range_off), _azimuth_fingerprint(az_rad),
+            float(resolution_m), int(width_px))
 
 
 def _azimuth_fingerprint(az_rad: np.ndarray) -> bytes:
@@ -265,47 +285,24 @@ def _azimuth_fingerprint(az_rad: np.ndarray) -> bytes:
 _CACHE = _MapCache(_CACHE_SIZE)
 
 
-class _MovingMapCache:
+class _MovingMapCache(_LRU):
     """The last few `moving_sample_maps` results, keyed by geometry, grid, twist and frame; an entry serves
-    a sweep whose row times are within the reuse tolerance of its own (module docstring); thread-safe."""
-
-    def __init__(self, size: int):
-        self.size = size
-        self._entries: OrderedDict = OrderedDict()
-        self._lock = threading.Lock()
-        self.builds = 0
-        self.hits = 0
+    a sweep whose row times are within the reuse tolerance of its own (module docstring)."""
 
     def get(self, az_rad, azimuth_times_s, twist, frame_pose, num_bins, range_res, range_off, resolution_m,
             width_px):
         tau = np.asarray(azimuth_times_s, dtype=np.float64)
         key = (
-            int(az_rad.size), int(num_bins), float(range_res), float(range_off), _azimuth_fingerprint(az_rad),
-            float(resolution_m), int(width_px),
+            *_geometry_key(az_rad, num_bins, range_res, range_off, resolution_m, width_px),
             None if twist is None else tuple(float(v) for v in twist),
             None if frame_pose is None else tuple(float(v) for v in frame_pose),
         )
-        with self._lock:
-            entry = self._entries.get(key)
-            if entry is not None and _times_interchangeable(entry[0], tau, twist, resolution_m, width_px):
-                self._entries.move_to_end(key)
-                self.hits += 1
-                return entry[1]
-        maps = moving_sample_maps(az_rad, tau, twist, frame_pose, num_bins, range_res, range_off,
-                                  resolution_m, width_px)
-        with self._lock:
-            self._entries[key] = (tau.copy(), maps)
-            self._entries.move_to_end(key)
-            while len(self._entries) > self.size:
-                self._entries.popitem(last=False)
-            self.builds += 1
-        return maps
-
-    def clear(self):
-        with self._lock:
-            self._entries.clear()
-            self.builds = 0
-            self.hits = 0
+        entry = self._lookup(key, lambda e: _times_interchangeable(e[0], tau, twist, resolution_m, width_px))
+        if entry is None:
+            maps = moving_sample_maps(az_rad, tau, twist, frame_pose, num_bins, range_res, range_off,
+                                      resolution_m, width_px)
+            entry = self._store(key, (tau.copy(), maps))
+        return entry[1]
 
 
 def _times_interchangeable(tau_a_s: np.ndarray, tau_b_s: np.ndarray, twist, resolution_m: float,
@@ -328,13 +325,12 @@ _MOVING_CACHE = _MovingMapCache(_MOVING_CACHE_SIZE)
 
 def moving_map_cache_info() -> dict:
     """``{"builds", "hits", "entries", "max_entries"}`` of the de-skew / moved-frame map cache."""
-    c = _MOVING_CACHE
-    return {"builds": c.builds, "hits": c.hits, "entries": len(c._entries), "max_entries": c.size}
+    return _MOVING_CACHE.info()
 
 
 def map_cache_info() -> dict:
     """``{"builds", "hits", "entries", "max_entries"}`` of the sampling-map cache."""
-    return {"builds": _CACHE.builds, "hits": _CACHE.hits, "entries": len(_CACHE._entries), "max_entries": _CACHE.size}
+    return _CACHE.info()
 
 
 def clear_map_cache() -> None:
