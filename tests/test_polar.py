@@ -51,12 +51,11 @@ def reference_cartesian(power, az, range_res, range_off, res_m, width, near_m=0.
     )
 
 
-def make_scan(power, az, range_res=0.0432, range_off=0.0, valid=None):
+def make_scan(power, az, range_res=0.0432, range_off=0.0, valid=None, times_us=None):
+    """A `RadarScan`; its row times ``times_us`` (int µs), by default 625 µs apart from 0."""
     a = len(az)
-    return RadarScan.from_arrays(
-        np.arange(a, dtype=np.int64) * 625, az, power, valid=valid,
-        range_resolution_m=range_res, range_offset_m=range_off,
-    )
+    times = np.arange(a, dtype=np.int64) * 625 if times_us is None else np.asarray(times_us, dtype=np.int64)
+    return RadarScan.from_arrays(times, az, power, valid=valid, range_resolution_m=range_res, range_offset_m=range_off)
 
 
 def uniform_az(a, start=0.0):
@@ -256,11 +255,6 @@ def test_cache_evicts_least_recently_used():
     assert P.map_cache_info()["builds"] == size + 2
 
 
-def _timed_scan(power, az, row_times_us):
-    return RadarScan.from_arrays(np.asarray(row_times_us, dtype=np.int64), az, power,
-                                 range_resolution_m=0.0432, range_offset_m=0.0)
-
-
 def test_moving_maps_are_reused_for_the_same_twist_and_row_times(monkeypatch):
     """De-skew draws both sweeps of a match with one twist: the second drawing reuses the maps, and the image
     is the one freshly built maps draw; another twist, another frame or row times off by more than the
@@ -272,8 +266,8 @@ def test_moving_maps_are_reused_for_the_same_twist_and_row_times(monkeypatch):
     az = uniform_az(400)
     times = 1_000_000 + np.arange(400, dtype=np.int64) * 625  # 0.25 s sweep
     twist = (10.0, 0.2, 0.1)
-    a = _timed_scan(rng.random((400, 300), dtype=np.float32), az, times)
-    b = _timed_scan(rng.random((400, 300), dtype=np.float32), az, times + 250_000)  # next sweep, same row times
+    a = make_scan(rng.random((400, 300), dtype=np.float32), az, times_us=times)
+    b = make_scan(rng.random((400, 300), dtype=np.float32), az, times_us=times + 250_000)  # next sweep, same row times
     img_a = P.polar_to_cartesian(a, 0.4, 64, twist=twist)
     img_b = P.polar_to_cartesian(b, 0.4, 64, twist=twist)
     assert len(calls) == 1 and P.moving_map_cache_info() == {"builds": 1, "hits": 1, "entries": 1, "max_entries": 4}
@@ -287,9 +281,9 @@ def test_moving_maps_are_reused_for_the_same_twist_and_row_times(monkeypatch):
     # row times jittering by 2 µs move a point 0.02 mm at this twist: reused; 2 ms move it 2 cm: rebuilt
     jitter = np.zeros(400, dtype=np.int64)
     jitter[200:] = 2  # rows from 200 on late (times stay increasing)
-    P.polar_to_cartesian(_timed_scan(b.power, az, times + jitter), 0.4, 64, twist=twist)
+    P.polar_to_cartesian(make_scan(b.power, az, times_us=times + jitter), 0.4, 64, twist=twist)
     assert len(calls) == 4
-    P.polar_to_cartesian(_timed_scan(b.power, az, times + 1000 * jitter), 0.4, 64, twist=twist)
+    P.polar_to_cartesian(make_scan(b.power, az, times_us=times + 1000 * jitter), 0.4, 64, twist=twist)
     assert len(calls) == 5
 
 
