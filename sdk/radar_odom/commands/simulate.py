@@ -4,7 +4,7 @@ from __future__ import annotations
 from . import help_formatter
 
 HELP = "simulate a Navtech CTS350-X drive and write it in the Oxford Radar RobotCar layout"
-SCENARIO_NAMES = ("urban", "heavy_traffic", "open", "highway")  # radar_odom.sim.SCENARIOS, kept light
+SCENARIO_NAMES = ("urban", "heavy_traffic", "open", "highway", "junctions")  # radar_odom.sim.SCENARIOS, kept light
 
 
 def register(subparsers) -> None:

@@ -166,6 +166,8 @@ class DriveConfig:
     bend_probability: float = 0.25  # a gentle bend with no intersection
     junction_probability: float = 0.3  # a straight-through intersection (crossing traffic)
     turn_radius_m: Range = (9.0, 16.0)
+    # how far an intersection turn turns; (90, 90) draws nothing (the drives of every scenario before "junctions")
+    turn_angle_deg: Range = (90.0, 90.0)
     bend_angle_deg: Range = (10.0, 45.0)
     bend_radius_m: Range = (60.0, 200.0)
     curvature_ramp_m: float = 8.0  # curvature changes linearly over this length (smooth yaw rate)

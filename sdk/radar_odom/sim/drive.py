@@ -32,7 +32,8 @@ class Road:
         xy_m: float64[N, 2] centreline points (world frame).
         heading_rad: float64[N] centreline heading (unwrapped).
         intersections_s_m: float64[M] arc length of intersection centres (side roads cross).
-        turn_spans_m: float64[K, 2] (start, end) arc length of 90° turns (no buildings there).
+        turn_spans_m: float64[K, 2] (start, end) arc length of intersection turns (90°, or
+            `DriveConfig.turn_angle_deg`; no buildings there).
         lane_width_m, lanes_per_direction: the carriageway (ego side is left, y < 0 locally).
     """
 
@@ -152,7 +153,12 @@ def _curvature_profile(cfg: DriveConfig, length_m: float, rng: np.random.Generat
         if r < cfg.turn_probability + cfg.bend_probability:
             is_turn = r < cfg.turn_probability
             radius = _u(rng, cfg.turn_radius_m if is_turn else cfg.bend_radius_m)
-            angle = np.pi / 2 if is_turn else np.deg2rad(_u(rng, cfg.bend_angle_deg))
+            if not is_turn:
+                angle = np.deg2rad(_u(rng, cfg.bend_angle_deg))
+            elif tuple(cfg.turn_angle_deg) == (90.0, 90.0):
+                angle = np.pi / 2  # no draw: the same random stream as before turn_angle_deg existed
+            else:
+                angle = np.deg2rad(_u(rng, cfg.turn_angle_deg))
             kappa = rng.choice([-1.0, 1.0]) / radius
             ramp = min(cfg.curvature_ramp_m, angle * radius)
             arc = angle * radius - ramp  # the two half-ramps together turn kappa * ramp

@@ -1,4 +1,4 @@
-"""Named scenario presets: urban (default), heavy_traffic, open, highway.
+"""Named scenario presets: urban (default), heavy_traffic, open, highway, junctions.
 
 Each is a `Scenario` (drive + world + traffic); the radar model (`SimConfig`) is chosen
 separately. Use `get_scenario` to resolve a name with a helpful error.
@@ -63,7 +63,20 @@ HIGHWAY = Scenario(
     ),
 )
 
-SCENARIOS: dict[str, Scenario] = {s.name: s for s in (URBAN, HEAVY_TRAFFIC, OPEN, HIGHWAY)}
+# sharp junction turns (issue 50): the urban world, but intersections every 15-45 m where the ego mostly turns
+# 30-90 deg on a tight radius, slowed to 4-6 m/s by the lateral-acceleration limit (cruising 5-10 m/s between):
+# several turns of >= 30 deg within 2 s in a 100-sweep drive, where urban drives rarely turn 6 deg in 7 sweeps
+JUNCTIONS = Scenario(
+    name="junctions",
+    drive=DriveConfig(
+        cruise_speed_mps=(5.0, 10.0), max_speed_mps=10.0, straight_length_m=(10.0, 35.0),
+        turn_probability=0.8, bend_probability=0.1, junction_probability=0.1,
+        turn_angle_deg=(30.0, 90.0), turn_radius_m=(8.0, 14.0),
+        stop_probability=0.05, stop_duration_s=(1.0, 3.0),
+    ),
+)
+
+SCENARIOS: dict[str, Scenario] = {s.name: s for s in (URBAN, HEAVY_TRAFFIC, OPEN, HIGHWAY, JUNCTIONS)}
 
 
 def get_scenario(scenario: str | Scenario) -> Scenario:
