@@ -4,7 +4,8 @@ Ground truth is always returned in the Oxford relative convention (see `radar_od
 ``gt_relative[k]`` = ``(x, y, yaw)`` of sweep k+1 in sweep k, x forward, y right, z down.
 
 - Oxford: rows of ``gt/radar_odometry.csv`` matched by ``(destination, source)_radar_timestamp``
-  = the two PNG names.
+  = the two PNG names. Sweeps come in the order of their names, or of ``radar.timestamps`` where it
+  lists the same sweeps in another order (a host's reception order, stamps going back; `StampWarning`).
 - Boreas: absolute ENU poses of ``applanix/radar_poses.csv`` at the nearest ``GPSTime`` to each
   file name (the sweep's middle time), converted as in `._zup`.
 - MulRan: absolute poses of ``global_pose.csv`` at the nearest stamp to each sweep's middle time
@@ -157,6 +158,40 @@ def _sweep_files(folder: Path) -> tuple[list[Path], np.ndarray]:
     us = to_microseconds(np.array(stamps, dtype=np.int64))
     order = np.argsort(us, kind="stable")
     return [files[i] for i in order], us[order]
+
+
+def _reception_order(root: Path, paths: list[Path], stamps: np.ndarray) -> tuple[list[Path], np.ndarray]:
+    """Oxford: the sweeps in the order ``radar.timestamps`` lists them, where that is not the names' order.
+
+    A recording host writes the time file in the order it received the sweeps, and names each sweep by
+    its stamp, which may go back (a stamp late by more than a period: `radar_odom.sim.host_clock`). Sorted by
+    name, such a sweep would come after the one received after it, and neither pair's ground truth (rows keyed
+    by consecutive sweeps) would be found. The file is taken only where it lists every PNG once and nothing
+    else; otherwise (no file, a garbled one, another folder's) the names' order stays, as before. A
+    `StampWarning` says where the time goes back: the odometer refuses such a sweep (`StreamError`), a run
+    with ``on_error="skip"`` leaves it out.
+    """
+    listing = root / "radar.timestamps"
+    if not listing.is_file():
+        return paths, stamps
+    try:
+        listed = [int(line.split()[0]) for line in listing.read_text().splitlines() if line.strip()]
+    except (OSError, UnicodeDecodeError, ValueError):
+        return paths, stamps
+    listed_us = to_microseconds(np.array(listed, dtype=np.int64))
+    if len(listed_us) != len(stamps) or not np.array_equal(np.sort(listed_us), stamps) \
+            or np.array_equal(listed_us, stamps):
+        return paths, stamps
+    index = {s: i for i, s in enumerate(stamps.tolist())}
+    order = [index[s] for s in listed_us.tolist()]
+    back = np.flatnonzero(np.diff(listed_us) <= 0) + 1
+    warnings.warn(
+        f"{listing}: lists the sweeps in another order than their names (a recording host's reception order): "
+        f"read in that order; the time goes back at {back.size} sweep{'s' if back.size > 1 else ''} "
+        f"(first {paths[order[back[0]]].name}, after {paths[order[back[0] - 1]].name}), where the odometry "
+        "refuses the sweep (StreamError) or, skipping, leaves it out",
+        StampWarning, stacklevel=3)
+    return [paths[i] for i in order], listed_us
 
 
 def _detect(root: Path) -> tuple[str, Path]:
@@ -347,6 +382,7 @@ def read_sequence(
             warn_format_contradiction(root, fmt, [found], stacklevel=3)
     gap_us = int(round(max_pose_gap_s * 1e6))
     if fmt == "oxford":
+        paths, stamps = _reception_order(root, paths, stamps)
         rel = _oxford_gt(root, stamps)
     elif fmt == "boreas":
         rel = _zup_gt(root / boreas.POSES_RELPATH, boreas.read_boreas_poses, stamps, gap_us)
