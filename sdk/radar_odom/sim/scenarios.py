@@ -63,9 +63,9 @@ HIGHWAY = Scenario(
     ),
 )
 
-# sharp junction turns (issue 50): the urban world, but intersections every 15-45 m where the ego mostly turns
-# 30-90 deg on a tight radius, slowed to 4-6 m/s by the lateral-acceleration limit (cruising 5-10 m/s between):
-# several turns of >= 30 deg within 2 s in a 100-sweep drive, where urban drives rarely turn 6 deg in 7 sweeps
+# sharp junction turns (issue 50): the urban world, but intersections every 10-35 m where the ego mostly turns
+# 30-90 deg on a tight radius, slowed to 3.4-7 m/s by the lateral-acceleration limit (cruising 5-10 m/s between):
+# 1-4 turns of >= 30 deg within 2 s in every 100-sweep drive of seeds 0-15 (benchmarks/junction_turns.py)
 JUNCTIONS = Scenario(
     name="junctions",
     drive=DriveConfig(
