@@ -14,7 +14,14 @@ import pytest
 from radar_odom.commands.cli import main
 from radar_odom.errors import ConfigError
 from radar_odom.fleet.job import process_recording, publish
-from radar_odom.fleet.manifest import MANIFEST, done_row, job_key, recording_names, write_manifest
+from radar_odom.fleet.manifest import (
+    MANIFEST,
+    REPORTS_MANIFEST,
+    done_row,
+    job_key,
+    recording_names,
+    write_manifest,
+)
 from radar_odom.fleet.scheduler import default_threads
 
 FRAMES = 12  # adapt's labelling reads at least 12 sweeps
@@ -74,15 +81,18 @@ def test_recordings_sharing_a_name_get_their_parent_in_it_and_one_given_twice_is
         recording_names([a, a])
 
 
-def test_publish_replaces_an_earlier_folder_whole(tmp_path):
+def test_publish_replaces_fleets_own_earlier_folder_whole(tmp_path):
     old, new = tmp_path / "rec", tmp_path / ".rec.tmp"
+    row = {"recording": "rec", "path": str(tmp_path / "drives" / "rec")}
     old.mkdir()
     (old / "stale.csv").write_text("old")
-    new.mkdir()
+    write_manifest(old, "key-1", row)  # fleet's own earlier outputs of that recording (tests/test_outputs_kept.py:
+    new.mkdir()                        # a folder holding anything else is refused)
     (new / "estimates.csv").write_text("new")
+    write_manifest(new, "key-2", row)
     publish(new, old)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rec"]
-    assert sorted(p.name for p in old.iterdir()) == ["estimates.csv"]
+    assert sorted(p.name for p in old.iterdir()) == ["estimates.csv", MANIFEST]
 
 
 def test_a_failing_recording_leaves_nothing_behind(drives, cli_model, tmp_path):
@@ -155,7 +165,9 @@ def test_a_fleet_on_two_nodes_completes_the_good_reports_the_bad_and_resumes(dri
     rows = _rows(out)
     assert rows["corrupt"]["status"] == "failed" and rows["corrupt"]["attempts"] == "2"
     assert f"none of its {FRAMES} sweeps could be used" in rows["corrupt"]["reason"]
-    assert not (out / "corrupt").exists() and not [p for p in out.iterdir() if p.name.startswith(".")]
+    # no temporary folder left; the one hidden file is the reports' manifest (tests/test_outputs_kept.py)
+    assert not (out / "corrupt").exists()
+    assert [p.name for p in out.iterdir() if p.name.startswith(".")] == [REPORTS_MANIFEST]
     assert (out / "fleet.md").is_file() and "corrupt" in (out / "fleet.md").read_text()
 
     for drive in good:  # each recording on its own, as a user would run it: the same files, the same figures

@@ -4,6 +4,8 @@ from __future__ import annotations
 from . import threads_arg
 
 HELP = "simulate a short drive (held-out seed) and run a shipped model on it end to end"
+#: demo's manifest in its folder: the files it wrote, the only ones a later demo replaces
+MANIFEST = ".radar-odom-demo.json"
 
 
 def register(subparsers) -> None:
@@ -35,18 +37,32 @@ def register(subparsers) -> None:
         "-o",
         "--output",
         default="radar-odom-demo",
-        help="folder for the drive, trajectories and plot (default: ./radar-odom-demo)",
+        help="folder for the drive, trajectories and plot (default: ./radar-odom-demo): a new folder, or an "
+             "earlier demo's (its files are replaced; a folder holding anything else is refused)",
     )
     p.add_argument("--threads", type=threads_arg, default=None, help="onnxruntime threads (default: physical cores)")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    from ..model_zoo import default_model_name, resolve_model
+    from ..outputs import check_output_folder, files_below, remove_own_outputs, write_folder_manifest
     from .run_sequence import new_folder_removed_on_error
 
-    # OutputError (one line) when -o names a file; a failed demo leaves no empty folder behind
+    # before any work, in one line: -o a file, or a folder holding anything but an earlier demo's own files
+    own = check_output_folder(args.output, MANIFEST, "demo")
+    resolve_model(args.model or default_model_name())  # a model that is not there: said before anything goes
+    # a failed demo leaves no empty folder behind
     with new_folder_removed_on_error(args.output) as out:
-        _demo(args, out)
+        if own:
+            remove_own_outputs(out, MANIFEST)  # the earlier demo's files: its drive may be another seed's
+        try:
+            _demo(args, out)
+        finally:  # what is in the folder now is this demo's (it held nothing else): a later demo may replace it
+            if [f for f in files_below(out) if f != MANIFEST]:
+                write_folder_manifest(out, MANIFEST, "demo")
+            elif own:
+                (out / MANIFEST).unlink(missing_ok=True)
     return 0
 
 

@@ -6,7 +6,9 @@ from . import threads_arg
 HELP = "odometry over many recordings as Ray tasks (this machine or a cluster), resumable, with a fleet report"
 DESCRIPTION = HELP + (
     ". Each recording's outputs are exactly `radar-odom run`'s, written atomically to OUT/<recording name>/ "
-    "with a manifest (fleet-done.json); the same command again skips the recordings whose outputs are complete "
+    "with a manifest (fleet-done.json). OUT/<recording name> must be new or hold fleet's own earlier outputs of "
+    "that recording: anything else there, or an OUT inside a recording (or holding one), is refused before any "
+    "work. The same command again skips the recordings whose outputs are complete "
     "and valid for their inputs, the model and the options. A recording that fails is tried once more, then "
     "listed with its reason while the others go on. Writes OUT/fleet.csv (one row per recording) and "
     "OUT/fleet.md (summary, worst drives, error against speed and length). Needs the fleet extra (Ray): "
@@ -46,7 +48,7 @@ def run(args) -> int:
     from pathlib import Path
 
     from ..errors import OutputError
-    from ..fleet.report import DONE, FAILED, KEPT, write_csv, write_summary
+    from ..fleet.report import DONE, FAILED, KEPT, check_reports, claim_reports, write_csv, write_summary
     from ..fleet.scheduler import import_ray, run_fleet
     from ..model_zoo import default_model_name, resolve_model
     from .run import sequence_options
@@ -57,9 +59,11 @@ def run(args) -> int:
     out = Path(args.output)
     if out.exists() and not out.is_dir():
         raise OutputError(f"{out}: exists and is not a folder; give -o a folder (new, or an earlier fleet's)")
+    check_reports(out)  # the recordings' own folders are checked by run_fleet, all before any work
     fleet = run_fleet(args.recordings, out, model, options, address=args.address, threads=args.threads,
                       show_progress=not args.no_progress)
     rows = fleet.rows
+    claim_reports(out)
     csv_path = write_csv(out / "fleet.csv", rows)
     md_path = write_summary(out, rows, command=f"radar-odom fleet ({len(rows)} recordings) -o {out}")
     done, kept = sum(r["status"] == DONE for r in rows), sum(r["status"] == KEPT for r in rows)

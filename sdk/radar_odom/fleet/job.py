@@ -2,12 +2,18 @@
 manifest written there, then the folder renamed into place. No Ray here: this is what a worker calls."""
 from __future__ import annotations
 
-import glob
+import re
 import shutil
 import uuid
 from pathlib import Path
 
-from .manifest import write_manifest
+from .manifest import MANIFEST, check_recording_folder, write_manifest
+
+
+def _hidden(out_root: Path, name: str, kind: str) -> list[Path]:
+    """``out_root/.<name>.<kind>-<hex>``: the hidden folders fleet itself makes for ``name`` (tmp, old)."""
+    pattern = re.compile(rf"\.{re.escape(name)}\.{kind}-[0-9a-f]+")
+    return [p for p in out_root.iterdir() if pattern.fullmatch(p.name)] if out_root.is_dir() else []
 
 
 def process_recording(model, recording, out_root, name: str, options: dict, key: str) -> dict:
@@ -26,9 +32,13 @@ def process_recording(model, recording, out_root, name: str, options: dict, key:
     from .report import result_row
 
     out_root = Path(out_root)
-    # what an attempt killed with its worker left (one attempt per recording runs at a time: none is live)
-    for stale in [*out_root.glob(f".{glob.escape(name)}.tmp-*"), *out_root.glob(f".{glob.escape(name)}.old-*")]:
+    check_recording_folder(out_root / name, recording)  # before the work (the command checked it too)
+    # what an attempt killed with its worker left (one attempt per recording runs at a time: none is live): a
+    # temporary folder is fleet's alone; an earlier folder set aside loses only what its manifest lists
+    for stale in _hidden(out_root, name, "tmp"):
         shutil.rmtree(stale, ignore_errors=True)
+    for stale in _hidden(out_root, name, "old"):
+        _discard(stale)
     tmp = out_root / f".{name}.tmp-{uuid.uuid4().hex[:8]}"
     t0 = time.perf_counter()
     try:
@@ -48,19 +58,34 @@ def process_recording(model, recording, out_root, name: str, options: dict, key:
 
 
 def publish(tmp, final) -> None:
-    """Rename the finished folder ``tmp`` to ``final``; an existing ``final`` (an earlier, incomplete or
-    outdated run) is first renamed aside and removed after, so ``final`` is never a half-written folder."""
+    """Rename the finished folder ``tmp`` to ``final``; an existing ``final`` (fleet's own earlier outputs of
+    the same recording, outdated) is first renamed aside and its listed files removed after, so ``final`` is
+    never a half-written folder. `OutputError`, ``final`` untouched, where it holds anything else: a file fleet
+    did not write, another recording's outputs (`manifest.check_recording_folder`, the recording read from
+    ``tmp``'s manifest)."""
+    from .manifest import recording_of
+
     tmp, final = Path(tmp), Path(final)
     old = None
     if final.exists() or final.is_symlink():
+        check_recording_folder(final, recording_of(tmp) or "")
         old = final.with_name(f".{final.name}.old-{uuid.uuid4().hex[:8]}")
         final.rename(old)
     tmp.rename(final)
     if old is not None:
-        if old.is_dir() and not old.is_symlink():
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            old.unlink(missing_ok=True)
+        _discard(old)
+
+
+def _discard(folder: Path) -> None:
+    """Remove fleet's own earlier outputs set aside in ``folder`` (the files its manifest lists, the manifest,
+    then the folder if that left it empty); anything else stays where it is."""
+    from ..outputs import remove_own_outputs
+
+    remove_own_outputs(folder, MANIFEST, keep_manifest=False)
+    try:
+        folder.rmdir()
+    except OSError:
+        pass
 
 
 def one_line(exc: BaseException) -> str:

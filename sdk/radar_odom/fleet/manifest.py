@@ -17,6 +17,11 @@ from pathlib import Path
 
 MANIFEST = "fleet-done.json"
 MANIFEST_VERSION = 1
+# OUT itself: the report files, claimed by a manifest of their own before they are written (report.claim_reports)
+REPORT_FILES = ("fleet.csv", "fleet.md", "fleet-error.png")
+REPORTS_MANIFEST = ".radar-odom-fleet.json"
+# names a recording's folder cannot take: the reports, their manifest, the report's temporary file
+RESERVED_NAMES = (*REPORT_FILES, REPORTS_MANIFEST, ".fleet.csv.tmp")
 
 
 def file_sha256(path) -> str:
@@ -78,16 +83,73 @@ def done_row(folder, key: str) -> dict | None:
 
 
 def recording_names(recordings) -> list[str]:
-    """One output folder name per recording: its own name, or ``<parent>-<name>`` where two recordings share
-    a name (two vehicles' ``2019-01-10``); `ConfigError` where even those collide (the same path twice)."""
+    """One output folder name per recording: its own name, or ``<parent>-<name>`` where two recordings of the
+    command share a name (two vehicles' ``2019-01-10``); `ConfigError` where even those collide (the same path
+    twice) or where a name is one of the report's (`RESERVED_NAMES`: a recording folder named ``fleet.csv``)."""
     from ..errors import ConfigError
 
     paths = [Path(r).resolve() for r in recordings]
     names = [p.name for p in paths]
     names = [f"{p.parent.name}-{p.name}" if names.count(p.name) > 1 else p.name for p in paths]
     seen: dict[str, str] = {}
+    reserved = {n.lower() for n in RESERVED_NAMES}  # case-blind: fleet.CSV is fleet.csv on some file systems
     for r, name in zip(recordings, names):
+        if name.lower() in reserved:
+            raise ConfigError(f"{r}: a recording named {name} would write its outputs to OUT/{name}, the fleet "
+                              f"report's own name; rename the recording's folder (or link it under another name)")
         if name in seen:
             raise ConfigError(f"{r} and {seen[name]} would both write to OUT/{name}; give each recording once")
         seen[name] = str(r)
     return names
+
+
+def recording_of(folder) -> str | None:
+    """The recording (its resolved path, as the report row has it) whose outputs ``folder``'s manifest holds;
+    None without a readable manifest."""
+    try:
+        path = json.loads((Path(folder) / MANIFEST).read_text())["row"]["path"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return path if isinstance(path, str) else None
+
+
+def check_recording_folder(folder, recording) -> None:
+    """`OutputError` unless fleet may write ``recording``'s outputs into ``folder``: new (absent or empty), or
+    holding fleet's own earlier outputs (every file listed in its `MANIFEST`) of that same recording. Another
+    recording of the same name (``van1/drive`` in an earlier command, ``van2/drive`` now) is refused, not
+    replaced; so is any file fleet did not write there (`radar_odom.outputs.check_output_folder`)."""
+    from ..errors import OutputError
+    from ..outputs import check_output_folder
+
+    folder = Path(folder)
+    if folder.is_symlink():
+        raise OutputError(f"{folder}: is a link, which fleet did not make; kept: give -o another folder, or "
+                          "remove the link")
+    if not check_output_folder(folder, MANIFEST, "fleet"):
+        return
+    earlier = recording_of(folder)
+    if earlier is None or Path(earlier).resolve() != Path(recording).resolve():
+        raise OutputError(f"{folder}: holds fleet's outputs of another recording ({earlier or 'unknown'}), not of "
+                          f"{recording}; kept: give -o another folder, or give both recordings in one command "
+                          f"(each then gets its parent's name in front: docs/fleet.md)")
+
+
+def check_fleet_outputs(recordings, names, out_dir) -> None:
+    """Every refusal about where a fleet writes, before any work: `OutputError` where OUT is a recording, inside
+    one or holds one (its outputs would be written among the inputs: ``fleet drives/drive -o drives``), or where
+    a recording's folder ``OUT/<name>`` holds anything but fleet's own earlier outputs of that recording
+    (`check_recording_folder`)."""
+    from ..errors import OutputError
+
+    out_dir = Path(out_dir)
+    out = out_dir.resolve()
+    for r in recordings:
+        rec = Path(r).resolve()
+        if rec == out or out in rec.parents:
+            raise OutputError(f"-o {out_dir}: holds the recording {r}; outputs are never written among the "
+                              f"inputs: give -o a folder outside every recording")
+        if rec in out.parents:
+            raise OutputError(f"-o {out_dir}: is inside the recording {r}; outputs are never written among the "
+                              f"inputs: give -o a folder outside every recording")
+    for r, name in zip(recordings, names):
+        check_recording_folder(out_dir / name, r)

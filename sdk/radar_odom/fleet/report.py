@@ -50,6 +50,42 @@ def result_row(name: str, recording, result, seconds: float | str = "") -> dict:
     }
 
 
+def check_reports(out_dir) -> None:
+    """Before any work: `OutputError` where ``out_dir`` holds a report name (`manifest.REPORT_FILES`: a file,
+    a folder) that fleet did not write: not claimed by its `manifest.REPORTS_MANIFEST` (`claim_reports`), nor
+    an earlier fleet's ``fleet.csv`` (written before that manifest: its header says so)."""
+    from ..errors import OutputError
+    from ..outputs import foreign_files
+    from .manifest import REPORT_FILES, REPORTS_MANIFEST
+
+    out_dir = Path(out_dir)
+    if not out_dir.is_dir():
+        return
+    foreign = foreign_files(out_dir, REPORTS_MANIFEST, names=REPORT_FILES)
+    if foreign and not (out_dir / REPORTS_MANIFEST).exists() and _earlier_fleet_csv(out_dir / "fleet.csv"):
+        return
+    if foreign:
+        raise OutputError(f"{out_dir}: holds {', '.join(foreign)}, which radar-odom fleet did not write (the report "
+                          "takes those names); nothing was touched: give -o another folder, or move them")
+
+
+def _earlier_fleet_csv(path: Path) -> bool:
+    try:
+        with open(path, newline="") as f:
+            return f.readline().startswith(",".join(COLUMNS[:3]) + ",")
+    except (OSError, UnicodeDecodeError):
+        return False
+
+
+def claim_reports(out_dir) -> Path:
+    """``out_dir``'s `manifest.REPORTS_MANIFEST`, naming the report files as fleet's: written before them, so a
+    run stopped half-way through writing them still finds them its own."""
+    from ..outputs import write_folder_manifest
+    from .manifest import REPORT_FILES, REPORTS_MANIFEST
+
+    return write_folder_manifest(out_dir, REPORTS_MANIFEST, "fleet", files=REPORT_FILES)
+
+
 def failed_row(name: str, recording, reason: str, attempts: int) -> dict:
     row = dict.fromkeys(COLUMNS, "")
     row.update(recording=name, status=FAILED, reason=reason, attempts=attempts, path=str(recording))

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .job import one_line, process_recording
-from .manifest import done_row, file_sha256, job_key, recording_names
+from .manifest import check_fleet_outputs, done_row, file_sha256, job_key, recording_names
 from .report import FAILED, KEPT, failed_row
 
 RETRIES = 1  # a failing recording is tried once more, then reported
@@ -116,11 +116,12 @@ def run_fleet(recordings, out_dir, model_path, options: dict, *, address: str | 
     from ..onnx_model import OnnxModel
 
     t0 = time.perf_counter()
-    OnnxModel(model_path, 1)  # a model no worker could load: its one-line error first, not one per recording
     recordings = [str(r) for r in recordings]
     names = recording_names(recordings)
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    # before any work: OUT apart from every recording, and each OUT/<name> new or fleet's own of that recording
+    check_fleet_outputs(recordings, names, out_dir)
+    OnnxModel(model_path, 1)  # a model no worker could load: its one-line error first, not one per recording
     model_sha = file_sha256(model_path)
     keys = [job_key(r, model_sha, options) for r in recordings]
     rows: list = [None] * len(recordings)
@@ -143,6 +144,7 @@ def _run_on_ray(run: FleetRun, pending, recordings, names, keys, out_dir, model_
     from .._progress import progress
     from ..errors import ConfigError
     with ray_connection(address) as ray:
+        out_dir.mkdir(parents=True, exist_ok=True)  # once a cluster is there to fill it
         cpus = node_cpus(ray)
         run.nodes = len(cpus)
         run.threads = threads or default_threads(cpus, len(pending))
