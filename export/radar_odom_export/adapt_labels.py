@@ -23,7 +23,15 @@ def ray_labeller(address: str | None = None, threads: int | None = None):
     """A ``labeller`` for `adapt.adapt`: ``(model_path, sources, topic, sweeps) -> [(poses, rel), …]`` in the
     order of ``sources``, each a Ray task (``threads`` onnxruntime threads each; default: the cluster's CPUs
     shared among the recordings, `radar_odom.fleet.scheduler.default_threads`). ``address`` as for
-    `radar-odom fleet`: None starts a local Ray for the call."""
+    `radar-odom fleet`: None starts a local Ray for the call. An address that cannot be one is a `ConfigError`
+    now, and one where nothing listens a `ClusterError` (`radar_odom.fleet.scheduler.check_ray_address`,
+    `probe_ray_address`): not after the recordings are read; joining the cluster is given
+    `RAY_CONNECT_TIMEOUT_S` when the labels are asked for."""
+    from radar_odom.fleet.scheduler import check_ray_address, probe_ray_address
+
+    address = check_ray_address(address)
+    if address not in (None, "auto"):
+        probe_ray_address(address)
 
     def label(model_path, sources, topic, sweeps):
         from radar_odom.fleet.scheduler import default_threads, node_cpus, ray_connection

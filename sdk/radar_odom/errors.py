@@ -79,6 +79,11 @@ class OutputError(RadarOdomError, OSError):
     """An output path cannot be written (e.g. ``-o`` names an existing file)."""
 
 
+class ClusterError(RadarOdomError, ConnectionError):
+    """A Ray cluster that cannot be reached or started (``--address``): the message names the address and the
+    reason (nothing listening there, no answer within the connect timeout, no cluster to join)."""
+
+
 class RunAborted(RadarOdomError):
     """``run_sequence(..., on_error="stop")`` met a sweep it could not use.
 

@@ -49,10 +49,11 @@ def run(args) -> int:
 
     from ..errors import OutputError
     from ..fleet.report import DONE, FAILED, KEPT, check_reports, claim_reports, write_csv, write_summary
-    from ..fleet.scheduler import import_ray, run_fleet
+    from ..fleet.scheduler import check_ray_address, import_ray, run_fleet
     from ..model_zoo import default_model_name, resolve_model
     from .run import sequence_options
 
+    check_ray_address(args.address)  # `garbage`, `host:text`: refused before Ray is asked anything
     import_ray()  # the one-line install hint before anything else
     options = sequence_options(args)
     model = resolve_model(args.model or default_model_name())

