@@ -123,3 +123,50 @@ def test_adapt_on_ray_with_an_address_it_cannot_join_is_one_line_before_any_work
     monkeypatch.setattr(adapt_mod, "base_files", lambda *a, **k: pytest.fail("base prepared before the check"))
     assert main(["adapt", str(drive), "-o", str(tmp_path / "m.onnx"), "--ray", "--address", address]) == 1
     assert expect in one_error_line(capsys, "adapt")
+
+
+# ------------------------------------------------------------------------------------------ train --resume
+@pytest.mark.torch
+@pytest.mark.skipif(NO_TORCH, reason="train needs the export extra (torch)")
+@pytest.mark.parametrize("damage", ["garbage", "truncated", "no model"])
+def test_train_resume_from_a_damaged_state_is_one_line_naming_it_and_keeps_the_best_checkpoint(damage, tmp_path,
+                                                                                              capsys):
+    import torch
+
+    from radar_odom_export.train import STATE_FORMAT, state_path
+
+    best = tmp_path / "m.pt"
+    best.write_bytes(b"the best checkpoint, as it was")
+    sp = state_path(best)
+    if damage == "garbage":
+        sp.write_bytes(b"\x00garbage, not a zip nor a pickle" * 10)
+    else:
+        state = {"format": STATE_FORMAT, "profile": {}, "objective": "pose", "optimizer": {}, "epoch": 1,
+                 "step": 3, "best_val": 1.0, "best_epoch": 1, "history": [], "steps": [], "wall_s": 1.0, "rng": {},
+                 "model": {"w": torch.zeros(4096)}}
+        if damage == "no model":
+            del state["model"]
+        torch.save(state, sp)
+        if damage == "truncated":  # a disk that filled up while it was written
+            sp.write_bytes(sp.read_bytes()[: sp.stat().st_size // 2])
+    assert main(["train", "-o", str(best), "--resume", "--minutes", "1"]) == 1
+    line = one_error_line(capsys, "train")
+    assert f"{sp}: the resume state cannot be read (" in line
+    assert "delete it and train again without --resume" in line and f"the best checkpoint {best} is left" in line
+    assert best.read_bytes() == b"the best checkpoint, as it was"
+
+
+@pytest.mark.torch
+@pytest.mark.skipif(NO_TORCH, reason="train needs the export extra (torch)")
+def test_train_called_with_a_truncated_state_raises_the_same_checkpoint_error(tmp_path):
+    from radar_odom.profiles import GridProfile
+    from radar_odom_export import data as D
+    from radar_odom_export.checkpoint import CheckpointError
+    from radar_odom_export.train import TrainConfig, state_path, train
+
+    tiny = GridProfile("tiny", resolution_m=1.6, width_px=64, max_translation_m=4, rotation_range_rad=0.05,
+                       rotation_step_rad=0.025, unet_base_channels=4, unet_depth=3)
+    state_path(tmp_path / "m.pt").write_bytes(b"PK\x03\x04 truncated")
+    cfg = TrainConfig(output=str(tmp_path / "m.pt"), profile=tiny, epochs=1, batch=4, threads=1, resume=True)
+    with pytest.raises(CheckpointError, match="m.state.pt: the resume state cannot be read"):
+        train(cfg, [D.toy_drive(tiny, 6, 1)], [D.toy_drive(tiny, 6, 2)])

@@ -61,6 +61,8 @@ from .data import NO_AUGMENT, Augment, DataSpecError, Drive, PairDataset
 from .distil import MASK_LOSS_TEXT, mask_loss
 
 STATE_FORMAT = "radar-odom-train-state/1"
+STATE_KEYS = ("profile", "objective", "model", "optimizer", "epoch", "step", "best_val", "best_epoch", "history",
+              "steps", "wall_s", "rng")  # what a resume reads from the state
 TRAINING_FREE = ("raw", "cfar")  # maskings with no weights: `train` only describes them
 POSE_LOSSES = ("mse", "ce", "ce+mse")
 TRAIN_SEARCHES = ("exhaustive", "decoupled")
@@ -113,6 +115,36 @@ def state_path(output) -> Path:
     """``model.pt`` -> ``model.state.pt``: the resume file beside a checkpoint."""
     p = Path(output)
     return p.with_name(p.stem + ".state.pt")
+
+
+def _unusable_state(sp: Path, output, exc: BaseException) -> str:
+    lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
+    detail = f"{type(exc).__name__}: {lines[0][:160]}" if lines else type(exc).__name__
+    best = Path(output)
+    kept = f"the best checkpoint {best} is left as it is" if best.is_file() else "no best checkpoint was written yet"
+    return (f"{sp}: the resume state cannot be read ({detail}): it is truncated or not a training state; "
+            f"delete it and train again without --resume ({kept})")
+
+
+def read_resume_state(output) -> dict:
+    """The resume state beside the checkpoint ``output`` (`state_path`), read with ``weights_only=True``.
+    `CheckpointError` in one line naming the file and what to do: none there, or one that cannot be read
+    (truncated by a full disk, garbage: torch's own RuntimeError / UnpicklingError) or is not a training
+    state. The best checkpoint itself is never touched here."""
+    sp = state_path(output)
+    if not sp.exists():
+        raise CheckpointError(f"{sp}: no resume state to continue from; run without --resume first")
+    try:
+        st = torch.load(sp, map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - torch raises RuntimeError, pickle's UnpicklingError, EOFError, ...
+        raise CheckpointError(_unusable_state(sp, output, exc)) from None
+    if not isinstance(st, dict) or st.get("format") != STATE_FORMAT:
+        raise CheckpointError(f"{sp}: not a radar-odom training state ({STATE_FORMAT}); delete it and train again "
+                              "without --resume, or give -o the checkpoint it belongs to")
+    missing = [k for k in STATE_KEYS if k not in st]
+    if missing:
+        raise CheckpointError(_unusable_state(sp, output, KeyError(f"no {', '.join(missing)}")))
+    return st
 
 
 def log_path(output) -> Path:
@@ -539,11 +571,7 @@ def train(
 
     if cfg.resume:
         sp = state_path(cfg.output)
-        if not sp.exists():
-            raise CheckpointError(f"{sp}: no resume state to continue from; run without --resume first")
-        st = torch.load(sp, map_location="cpu", weights_only=True)
-        if not isinstance(st, dict) or st.get("format") != STATE_FORMAT:
-            raise CheckpointError(f"{sp}: not a radar-odom training state ({STATE_FORMAT})")
+        st = read_resume_state(cfg.output)
         # compared as profiles, so a state saved before GridProfile gained a field (read back with
         # that field's default) still resumes; any field that differs refuses, and is named
         saved = GridProfile.from_dict(st["profile"])
@@ -559,13 +587,16 @@ def train(
                 f"{sp}: was trained {'with' if st.get('symmetric_masker') else 'without'} --symmetric-masker; "
                 "resume with the same settings"
             )
-        model.load_state_dict(st["model"])
-        optim.load_state_dict(st["optimizer"])
-        start_epoch, step = int(st["epoch"]), int(st["step"])
-        best_val, best_epoch = float(st["best_val"]), int(st["best_epoch"])
-        history, steps_log = list(st["history"]), [list(x) for x in st["steps"]]
-        wall_before = float(st["wall_s"])
-        _set_rng_state(st["rng"])
+        try:  # a state of the right format that is still not whole (edited, or written by a broken build)
+            model.load_state_dict(st["model"])
+            optim.load_state_dict(st["optimizer"])
+            start_epoch, step = int(st["epoch"]), int(st["step"])
+            best_val, best_epoch = float(st["best_val"]), int(st["best_epoch"])
+            history, steps_log = list(st["history"]), [list(x) for x in st["steps"]]
+            wall_before = float(st["wall_s"])
+            _set_rng_state(st["rng"])
+        except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+            raise CheckpointError(_unusable_state(sp, cfg.output, exc)) from None
         record["best_val_loss"] = next((h["val_loss"] for h in history if h["epoch"] == best_epoch), math.nan)
 
     net = objective
@@ -886,6 +917,8 @@ def run_from_args(args) -> dict:
     minutes = None if not args.minutes else float(args.minutes)
     if args.minutes is not None and not (math.isfinite(args.minutes) and args.minutes >= 0):
         raise DataSpecError(f"--minutes {args.minutes}: give a budget in minutes ≥ 0 (0: no budget, --epochs alone)")
+    if args.resume:  # a missing or damaged state is said now, not after the drives are simulated (minutes)
+        read_resume_state(args.output)
     d = init_distributed()
     try:
         if d.main:
