@@ -5,6 +5,7 @@
     python benchmarks/scorecard.py --candidate-option deskew=1   # a default change: the candidate's odometer option
     python benchmarks/scorecard.py --candidate-dir my-models/    # candidate .onnx files (named like the shipped ones)
     python benchmarks/scorecard.py --previous-code HEAD~3        # the previous side also on that revision's runtime
+    python benchmarks/scorecard.py --previous HEAD --previous-option config=plain   # the default against plain matching
     python benchmarks/scorecard.py --seeds 123456 --markdown sc.md --json sc.json   # repeat a run's seeds
 
 For each shipped grid (``cart-0.4``, ``cart-0.8``) two sides are measured on the very same data: the
@@ -145,12 +146,21 @@ def odometer(model: str, options: dict):
     return RadarOdometer(model, threads=1, **options)
 
 
+def _match_decides() -> bool:
+    """Whether this runtime counts periods by the match (issue 50: `radar-odom run` no longer passes a period)."""
+    try:
+        import radar_odom.odometry.config  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
 def run_scans(model: str, options: dict, scans, seq=None):
     """(absolute poses float64[N, 3, 3], estimates) of `RadarOdometer` over ``scans``; with the recording
     ``seq`` they came from, the odometer knows its fitted sweep period as `radar-odom run` tells it
     (where this runtime fits one)."""
     base = getattr(seq, "time_base", None)
-    if base is not None:
+    if base is not None and not _match_decides():  # a runtime before issue 50 was told the fitted period
         options = {"sweep_period_s": base.period_s, **options}
     odo = odometer(model, options)
     ests = [e for e in (odo.step(s) for s in scans) if e is not None]
@@ -183,7 +193,8 @@ def measure_real(model, options) -> dict:
     out = {}
     drive = REAL / RADIATE_DRIVE
     if drive.is_dir():
-        seq = read_sequence(drive)
+        # plain matching reads the stamps as recorded (`radar-odom run --plain`)
+        seq = read_sequence(drive, repair_stamps=False) if options.get("config") == "plain" else read_sequence(drive)
         scans = [f.scan for f in seq]
         out["whole"] = xyyaw(run_scans(model, options, scans, seq)[0])
         out["held_out"] = xyyaw(run_scans(model, options, scans[HELD_OUT_START:], seq)[0])
@@ -408,15 +419,21 @@ def run_side_subprocess(spec: dict, pythonpath: Path | None, work: Path) -> dict
 
 
 def parse_options(items) -> dict:
-    """``["deskew=1", "motion_prior=0"]`` → {"deskew": True, "motion_prior": False}; numbers stay numbers."""
+    """``["deskew=1", "motion_prior=0", "config=plain"]`` → {"deskew": True, "motion_prior": False, "config": "plain"};
+    numbers stay numbers, other words strings."""
     out = {}
     for item in items or ():
         key, sep, value = item.partition("=")
         if not sep:
             raise SystemExit(f"option {item!r}: write NAME=VALUE (e.g. deskew=1)")
         low = value.lower()
-        out[key] = (True if low in ("1", "true", "on", "yes") else False if low in ("0", "false", "off", "no")
-                    else float(value))
+        if low in ("1", "true", "on", "yes", "0", "false", "off", "no"):
+            out[key] = low in ("1", "true", "on", "yes")
+        else:
+            try:
+                out[key] = float(value)
+            except ValueError:  # a name: config=plain
+                out[key] = value
     return out
 
 

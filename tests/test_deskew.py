@@ -121,7 +121,7 @@ def test_centred_yaw_and_deskew_redraw_the_reference_with_its_turn(sim_drive):
     odo = RadarOdometer(pretrained("cart-0.4"), deskew=True, centre_yaw=True, motion_prior=False)
     for s in scans[:4]:
         odo.step(s)
-    turn, ref_source, ref_twist = odo._ref_turn, odo._deskew_stage.ref_scan.source, odo._deskew_stage.ref_twist
+    turn, ref_source, ref_twist = odo._state.ref.turn, odo._deskew_stage.ref_scan.source, odo._deskew_stage.ref_twist
     assert turn != 0.0  # the reference was drawn turned by the predicted yaw
     drawn = []
     real = odo._sweep_input

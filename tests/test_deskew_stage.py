@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from radar_odom.odometry.deskew_stage import DESKEW_STEPS, DeskewStage
+from radar_odom.odometry.match_stage import Match
 from radar_odom.profiles import get_profile
 from radar_odom.scan import RadarScan
 
@@ -67,7 +68,7 @@ def test_the_first_match_is_drawn_again_with_the_velocity_it_measured():
     s, calls = stage()
     s.keep_reference(sweep(), None)
     rematched = []
-    out = (np.array([2.5, 0.0, 0.0]), np.eye(3))
+    out = Match(np.array([2.5, 0.0, 0.0]), np.eye(3), None, 0.0, 1)
     again = (np.array([2.6, 0.0, 0.0]), np.eye(3))
     got, twist = s.first_match(sweep(250_000), 0.25, out, None, lambda tw: rematched.append(tw) or again)
     assert got is again and twist == pytest.approx((10.0, 0.0, 0.0))
@@ -82,7 +83,7 @@ def test_the_first_match_is_drawn_again_with_the_velocity_it_measured():
 def test_other_steps_pass_through_the_first_match_untouched(case):
     s, calls = stage(enabled=case != "off")
     s.keep_reference(sweep(), None)
-    out = (np.array([0.0 if case == "still" else 2.5, 0.0, 0.0]), np.eye(3))
+    out = Match(np.array([0.0 if case == "still" else 2.5, 0.0, 0.0]), np.eye(3), None, 0.0, 1)
     twist = (10.0, 0.0, 0.0) if case == "has_twist" else None
     if case == "has_motion":
         s.observe((2.5, 0.0, 0.0), 0.25)

@@ -1,4 +1,4 @@
-"""The gap crossing's de-skew (`MatchStage.cross_gap` / `deskew_crossing`) against a stand-in graph.
+"""The gap crossing's readings and their de-skew (`MatchStage._crossing` / `deskew_crossing`) against a stand-in graph.
 
 The graph is replaced by callables that "measure" a chosen pose whatever the window centre (the residual
 M = truth ∘ centre⁻¹, so `gaps.compose_residual` gives the truth back), one for the reference as recorded
@@ -14,8 +14,9 @@ from types import SimpleNamespace
 import numpy as np
 
 from radar_odom.odometry import gaps as G
-from radar_odom.odometry.match_stage import CROSSING_DESKEW_ROUNDS, MatchStage
-from radar_odom.odometry.motion_prior import GATED, MotionPriorConfig
+from radar_odom.odometry.config import OdometerConfig
+from radar_odom.odometry.match_stage import CROSSING_DESKEW_ROUNDS, NO_AGREEMENT, MatchStage
+from radar_odom.odometry.motion_prior import MotionPriorConfig
 from radar_odom.profiles import get_profile
 from radar_odom.se2 import se2, to_xyyaw
 
@@ -52,8 +53,13 @@ def stage(recorded, deskewed, calls):
         calls.append(("first", drawn))
         return np.ones(4)
 
-    return MatchStage(PROFILE, 0.0, True, False, None, SimpleNamespace(config=MotionPriorConfig()), run_pair,
-                      run_first, lambda scan, motion=None: motion, run_against=run_against, deskew_gaps=True)
+    return MatchStage(PROFILE, 0.0, True, False, OdometerConfig(), SimpleNamespace(config=MotionPriorConfig()),
+                      run_pair, run_first, lambda scan, motion=None: motion, run_against=run_against)
+
+
+def cross(st, ref_scan=REF_SCAN):
+    """The crossing's reading (pose, cov), or NO_AGREEMENT, of a stand-in stage over the 6-sweep gap."""
+    return st._crossing(SCAN, None, PRED, 0.0, ref_scan, INTERVAL_S, lambda reading: True)
 
 
 def test_an_agreed_crossing_is_refined_by_the_de_skewed_match():
@@ -61,11 +67,9 @@ def test_an_agreed_crossing_is_refined_by_the_de_skewed_match():
     # so the crossing takes it (the consensus' covariance kept)
     refined = TRUTH + np.array([0.15, 0.0, math.radians(0.3)])
     calls = []
-    out = stage(measuring(TRUTH + [0.5, 0.3, 0.02]), measuring(refined), calls).cross_gap(
-        SCAN, "x", None, PRED, 0.0, REF_SCAN, INTERVAL_S)
-    assert len(out) == 4  # not gated
+    out = cross(stage(measuring(TRUTH + [0.5, 0.3, 0.02]), measuring(refined), calls))
+    assert out is not NO_AGREEMENT and len(out) == 2  # agreed: (pose, cov)
     np.testing.assert_allclose(out[0], refined, atol=1e-9)
-    assert out[2] is not None and out[3] == 0.0
     # the readings were drawn de-skewed (a twist), never against the reference as recorded
     assert not [c for c in calls if c[0] == "recorded"]
     drawn = [c[1] for c in calls if c[0] == "deskewed"]
@@ -81,19 +85,17 @@ def test_readings_that_disagree_once_de_skewed_fall_back_to_the_readings_as_reco
         return np.array([4.0, 4.0, 0.1]), COV.copy(), np.zeros(3)
 
     calls = []
-    out = stage(measuring(TRUTH), scattered, calls).cross_gap(SCAN, "x", None, PRED, 0.0, REF_SCAN, INTERVAL_S)
-    assert len(out) == 4, out  # agreed on the readings as recorded, not gated
+    out = cross(stage(measuring(TRUTH), scattered, calls))
+    assert out is not NO_AGREEMENT, out  # agreed on the readings as recorded, not gated
     np.testing.assert_allclose(out[0], TRUTH, atol=1e-9)  # the refinement found nothing near it: kept as agreed
     assert [c for c in calls if c[0] == "recorded"]
 
 
-def test_nothing_agreeing_either_way_keeps_the_prediction_gated():
+def test_nothing_agreeing_either_way_is_no_agreement():
     def scattered(drawn):
         return np.array([4.0, 4.0, 0.1]), COV.copy(), np.zeros(3)
 
-    out = stage(scattered, scattered, []).cross_gap(SCAN, "x", None, PRED, 0.0, REF_SCAN, INTERVAL_S)
-    assert GATED in out[4]
-    np.testing.assert_allclose(out[0], PRED[0])
+    assert cross(stage(scattered, scattered, [])) is NO_AGREEMENT
 
 
 def test_a_refinement_that_jumps_to_another_peak_is_not_taken():
@@ -105,14 +107,14 @@ def test_a_refinement_that_jumps_to_another_peak_is_not_taken():
         far = TRUTH + ([1.5, 0.0, 0.0] if drawn.twist is not None and state["n"] > 9 else 0.0)
         return measuring(far)(drawn)
 
-    out = stage(measuring(TRUTH), deskewed, []).cross_gap(SCAN, "x", None, PRED, 0.0, REF_SCAN, INTERVAL_S)
-    assert len(out) == 4
+    out = cross(stage(measuring(TRUTH), deskewed, []))
+    assert out is not NO_AGREEMENT
     np.testing.assert_allclose(out[0], TRUTH, atol=1e-9)
 
 
 def test_without_the_reference_sweep_the_crossing_is_as_before():
     calls = []
-    out = stage(measuring(TRUTH), measuring(TRUTH + 1.0), calls).cross_gap(SCAN, "x", None, PRED, 0.0)
+    out = cross(stage(measuring(TRUTH), measuring(TRUTH + 1.0), calls), ref_scan=None)
     np.testing.assert_allclose(out[0], TRUTH, atol=1e-9)
     assert not [c for c in calls if c[0] == "deskewed"]
 
@@ -120,13 +122,12 @@ def test_without_the_reference_sweep_the_crossing_is_as_before():
 def test_readings_agreeing_on_a_motion_no_car_makes_are_left_out():
     """Every reading agrees on a pose inside the gap's prior but 3 m sideways of the arc a car drives with its
     yaw (the seed-10001 tightening turn, docs/gaps.md): left out, so nothing agrees and the prediction is kept,
-    gated; readings 3 m sideways on the other way are left out alike, and the truth beside them is taken."""
+    no agreement (the crossing then keeps the prediction);
+    readings 3 m sideways on the other way are left out alike, and the truth beside them is taken."""
     normal = np.array([-math.sin(TRUTH[2] / 2), math.cos(TRUTH[2] / 2), 0.0])
     for side in (+1.0, -1.0):
         skid = TRUTH + side * 3.0 * normal
         assert G.crossing_d2(skid, COV, *PRED) < MotionPriorConfig().gate_d2  # the prior alone would take it
-        out = stage(measuring(skid), measuring(skid), []).cross_gap(SCAN, "x", None, PRED, 0.0, REF_SCAN, INTERVAL_S)
-        assert GATED in out[4]
-        np.testing.assert_allclose(out[0], PRED[0])
-    out = stage(measuring(TRUTH), measuring(TRUTH), []).cross_gap(SCAN, "x", None, PRED, 0.0, REF_SCAN, INTERVAL_S)
-    assert len(out) == 4 and not G.off_the_arc(TRUTH, COV)
+        assert cross(stage(measuring(skid), measuring(skid), [])) is NO_AGREEMENT
+    out = cross(stage(measuring(TRUTH), measuring(TRUTH), []))
+    assert out is not NO_AGREEMENT and not G.off_the_arc(TRUTH, COV)

@@ -189,16 +189,13 @@ def test_few_stamps_are_kept_and_bad_ones_refused():
 def test_a_known_sweep_period_makes_two_periods_a_gap(tiny_model):
     from radar_odom import RadarOdometer
     from radar_odom.errors import ConfigError
-    from radar_odom.odometry.gaps import SweepPeriod
+    from radar_odom.odometry.stream_time import StreamClock
 
-    median = SweepPeriod()
-    known = SweepPeriod(known_s=0.25)
-    for _ in range(10):  # a stretch that dropped every other sweep: the median reads 0.5 s
-        median.observe(0.5)
-        known.observe(0.5)
-    assert not median.is_gap(0.5) and known.is_gap(0.5) and not known.is_gap(0.3)
-    assert known.nominal_s == 0.25 and SweepPeriod(known_s=0.25).is_gap(0.5)  # known before any interval
-    assert RadarOdometer(tiny_model, sweep_period_s=0.25)._period.is_gap(0.5)
+    median, known = StreamClock(), StreamClock(known_s=0.25)
+    for _ in range(10):  # a stretch that dropped every other sweep, taken as one period a step: 0.5 s
+        median.observe(0.5, 1)
+    assert median.periods(0.5) == 1 and known.periods(0.5) == 2 and known.periods(0.3) == 1
+    assert RadarOdometer(tiny_model, sweep_period_s=0.25).config.time.sweep_period_s == 0.25
     for bad in (0.0, -1.0, float("nan"), "fast"):
         with pytest.raises(ConfigError, match="sweep_period_s"):
             RadarOdometer(tiny_model, sweep_period_s=bad)

@@ -35,6 +35,7 @@ _LAZY = {
     "pretrained_names": "model_zoo",
     "Estimate": "odometry.odometer",
     "MotionPriorConfig": "odometry.motion_prior",
+    "OdometerConfig": "odometry.config",
     "ExternalOdometry": "odometry.motion_prior",
     "read_bag": "io.bag",
     "open_bag": "io.bag",

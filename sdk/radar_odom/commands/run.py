@@ -51,6 +51,11 @@ def register_recording_options(p):
 
     from ..odometry.odometer import DESKEW_DEFAULT
 
+    p.add_argument("--plain", action="store_true",
+                   help="plain matching, the reference every runtime stage is judged against (docs/scorecard.md): "
+                        "stamps as recorded, consecutive matches, the constant-velocity prediction only to place "
+                        "the search window; no motion-prior fusion or gate, no gap crossing, no re-timing "
+                        "(implies --keep-stamps and --no-motion-prior)")
     p.add_argument("--keep-stamps", action="store_true",
                    help="keep the sweep stamps as recorded (RADIATE, bags): no time base fitted on the sensor's "
                         "period, late host stamps not put back (repair_stamps=False)")
@@ -164,7 +169,8 @@ def run(args) -> int:
               "to align (they apply to RADIATE's GPS_IMU_Twist/)", file=sys.stderr)
     gated = sum(e.gated for e in result.estimates)
     dominated = sum(e.prior_dominated for e in result.estimates)
-    prior = "motion prior off" if args.no_motion_prior else f"{gated} gated, {dominated} prior-dominated"
+    prior = ("plain matching" if getattr(args, "plain", False) else
+             "motion prior off" if args.no_motion_prior else f"{gated} gated, {dominated} prior-dominated")
     print(f"model: {model_spec}" + ("" if str(model) == str(model_spec) else f" ({model})"))
     print(f"{len(result.timestamps_us)} sweeps, {len(result.estimates)} estimates "
           f"({result.num_degenerate} degenerate; {prior}), {1e3 * result.seconds_per_step:.1f} ms per sweep")
@@ -213,6 +219,7 @@ def sequence_options(args) -> dict:
     from ..odometry.pipeline import DEFAULT_PREFETCH
 
     return dict(max_gap_s=args.max_gap_s, plot=not args.no_plot, motion_prior=not args.no_motion_prior,
+                plain=bool(getattr(args, "plain", False)),
                 on_error=args.on_error, prefetch=0 if args.no_pipeline else DEFAULT_PREFETCH,
                 deskew=args.deskew, centre_yaw=args.centre_yaw,
                 gt_time_offset=_offset(args.gt_time_offset, "--gt-time-offset"),

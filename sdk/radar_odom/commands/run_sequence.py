@@ -178,7 +178,7 @@ def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float | No
                  prefetch: int = DEFAULT_PREFETCH, deskew: bool | None = None, centre_yaw: bool | None = None,
                  gt_time_offset: float | None = None, gt_heading_offset_deg: float | None = None,
                  topic: str | None = None, bag_geometry: dict | None = None, bag_out=None,
-                 repair_stamps: bool = True) -> RunResult:
+                 repair_stamps: bool = True, plain: bool = False) -> RunResult:
     """Run ``model`` (path or `RadarOdometer`) over the recording ``seq_dir``; write outputs.
 
     ``motion_prior`` (True, False or a `MotionPriorConfig`) is passed to the `RadarOdometer`
@@ -188,6 +188,8 @@ def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float | No
     (`radar_odom.odometry.pipeline.iter_estimates`; 0: no worker). The outputs do not depend on it;
     ``RunResult.throughput`` reports the pace (`radar_odom.odometry.pipeline.throughput`). ``max_gap_s``:
     None crosses every gap (`RadarOdometer`); ``deskew``, ``centre_yaw``: None takes the odometer's default.
+    ``plain``: plain matching (`OdometerConfig.plain`, `radar-odom run --plain`), the stamps as recorded
+    (``repair_stamps`` False) and ``motion_prior`` ignored.
     A GNSS/INS reference (RADIATE ``GPS_IMU_Twist/``) is aligned to the radar first:
     ``gt_time_offset`` (s; the reference for radar time t is the sample at t + offset) and
     ``gt_heading_offset_deg`` (the INS heading minus the direction of travel, counter-clockwise)
@@ -207,26 +209,25 @@ def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float | No
     if on_error not in ON_ERROR:
         raise ConfigError(f"on_error must be one of {ON_ERROR}, got {on_error!r}")
     # what can be refused is refused before the output folder is made: a refusal leaves no empty folder behind
-    seq = open_recording(seq_dir, topic, bag_geometry, repair_stamps=repair_stamps)
+    seq = open_recording(seq_dir, topic, bag_geometry, repair_stamps=repair_stamps and not plain)
     if bag_out is not None:  # what can be checked before the run, not after it
         check_bag_out(bag_out)
     with new_folder_removed_on_error(out_dir) as out_dir:
         return _run(seq, seq_dir, model, out_dir, threads=threads, max_gap_s=max_gap_s, show_progress=show_progress,
                     plot=plot, title=title, motion_prior=motion_prior, on_error=on_error, prefetch=prefetch,
                     deskew=deskew, centre_yaw=centre_yaw, reference_offsets=(gt_time_offset, gt_heading_offset_deg),
-                    bag_out=bag_out)
+                    bag_out=bag_out, plain=plain)
 
 
 def _run(seq, seq_dir, model, out_dir, *, threads, max_gap_s, show_progress, plot, title, motion_prior, on_error,
-         prefetch, deskew, centre_yaw, reference_offsets, bag_out) -> RunResult:
+         prefetch, deskew, centre_yaw, reference_offsets, bag_out, plain=False) -> RunResult:
     extra = {k: bool(v) for k, v in (("deskew", deskew), ("centre_yaw", centre_yaw)) if v is not None}
-    base = getattr(seq, "time_base", None)
-    if base is not None and base.period_s is not None:
-        # the recording's own period (a gap is a missing sweep, not a median), and the match decides the
-        # whole periods its stamps cannot (`radar_odom.odometry.whole_periods`)
-        extra["time_base"] = base
+    if plain:
+        extra = {**extra, "config": "plain"}
+    else:
+        extra["motion_prior"] = motion_prior
     odo = model if isinstance(model, RadarOdometer) else RadarOdometer(
-        model, threads=threads, max_gap_s=max_gap_s, motion_prior=motion_prior, **extra)
+        model, threads=threads, max_gap_s=max_gap_s, **extra)
     odo.reset()
     estimates: list[Estimate] = []
     prev_ts: list[int] = []
@@ -316,7 +317,7 @@ def _write_outputs(odo, seq, seq_dir, out_dir, estimates, prev_ts, skipped, pace
     result = RunResult(traj.poses, traj.timestamps_us, estimates, None,
                        seconds_per_step=pace.wall_s / max(len(traj), 1), skipped=list(skipped), throughput=pace)
     # the one time base of the run: the reader's, with the whole periods the match decided (the reference's too)
-    result.time_base = odo.time_base if odo.time_base is not None else getattr(seq, "time_base", None)
+    result.time_base = getattr(seq, "time_base", None)
     result.files["tum"] = write_tum(out_dir / "trajectory.tum", traj.timestamps_us, traj.poses)
     result.files["kitti"] = write_kitti(out_dir / "trajectory.kitti", traj.poses)
     result.files["estimates"] = write_estimates_csv(out_dir / "estimates.csv", estimates, prev_ts)

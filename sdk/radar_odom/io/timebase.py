@@ -36,7 +36,7 @@ How (`fit_time_base`; every step a pure function below):
    slot, the cheapest whole path through it; a slot within `ALTERNATIVE_MARGIN` of the best is
    listed in `TimeBase.alternatives`. A sweep after a single drop is always one: on time with the
    drop before it, or a period late with the drop after it (the same stamps). The odometer's match
-   decides (`radar_odom.odometry.whole_periods`, `TimeBase.decided`).
+   no longer acts on them (issue 50: the odometer's match decides a step's periods whatever the stamps say).
 
 Every sweep's time is then its lattice time: the host's jitter is gone too; stamps off it by more than
 the jitter band (`TimeBase.moved`) are the ones a run reports. Nothing here depends on the sweeps'
@@ -90,8 +90,8 @@ class TimeBase:
             "too few stamps".
         alternatives: ((i, (k_i, k_alt, …)), …) the sweeps whose index the stamps cannot tell (the
             fitted k first; `sweep_alternatives`): typically a sweep after a drop, whose stamp may
-            instead be a period late with the drop after it. The match decides
-            (`radar_odom.odometry.whole_periods`); `decided` gives the time base it settles on.
+            instead be a period late with the drop after it (kept for the reader's report: the odometer's
+            match decides a step's periods itself); `decided` gives the time base it settles on.
         decided_by_match: indices of the sweeps whose k a match decided (`decided`), in order.
     """
 
@@ -429,6 +429,20 @@ def fit_lattice_us(stamps_us: np.ndarray, k: np.ndarray, on_time: np.ndarray,
     return lattice + float(stamps_us[0]), float(slope)
 
 
+def check_period_hint_us(value) -> float | None:
+    """``period_hint_us`` as a float, or None; `ConfigError` for anything but a positive finite number (a string,
+    a bool, NaN, ∞, 0 or less), which would otherwise fail deep inside the fit (a TypeError) or be dropped."""
+    from ..errors import ConfigError
+
+    if value is None:
+        return None
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)) or not (
+            math.isfinite(value) and value > 0):
+        raise ConfigError(f"period_hint_us must be the sensor's period in microseconds, a positive number (e.g. "
+                          f"250000.0 for 4 Hz), or None; got {value!r}")
+    return float(value)
+
+
 def fit_time_base(timestamps_us, period_hint_us: float | None = None) -> TimeBase:
     """The recording's sweep times on the sensor's period, from its stamps (module docstring).
 
@@ -443,7 +457,9 @@ def fit_time_base(timestamps_us, period_hint_us: float | None = None) -> TimeBas
 
     Raises:
         SequenceError: stamps that do not increase, or that no sensor period fits.
+        ConfigError: a ``period_hint_us`` that is not a positive finite number (``'250000'``, NaN, 0).
     """
+    period_hint_us = check_period_hint_us(period_hint_us)
     t = check_stamps_us(timestamps_us)
     if t.size < MIN_SWEEPS:
         return TimeBase(t.copy(), t.copy(), np.arange(t.size, dtype=np.int64), 0.0, 0.0, (), "too few stamps")

@@ -3,10 +3,9 @@
 `RadarOdometer.step` (``odometer``: the stream's state and the order of the stages, ``_step``) runs one
 sweep through these stages, each in its own module:
 
-    time         in order, the same range bins, a new segment   stream_time, gaps.SweepPeriod (the period:
-                 after a stamp jump, the interval's gap flag;    io.timebase, fitted once per recording),
-                 where the stamps cannot place a sweep, its      whole_periods
-                 whole periods decided by the match
+    time         in order, the same range bins, a new segment   stream_time (StreamClock: the stamps'
+                 after a stamp jump; the periods the stamps      count of periods, advice only; the
+                 put in the interval                             match decides, match_stage)
     sweep checks geometry, degenerate sweeps                     sweep_checks
     graph input  the sweep as the graph takes it (de-skewed      sweep_input.graph_input, polar;
                  with the reference's twist, or drawn in a       deskew_stage.DeskewStage (which twist,

@@ -112,7 +112,7 @@ class DeskewStage:
         Any other step: ``(out, twist)`` as they are."""
         if out is None or twist is not None or not self.enabled or self.recent_motion:
             return out, twist
-        twist = self.radar_twist(np.asarray(out[0]) / interval_s, scan)
+        twist = self.radar_twist(np.asarray(out.pose) / interval_s, scan)
         if twist is None or not self._redraw(twist):
             return out, None
         again = rematch(twist)

@@ -8,10 +8,9 @@ P⁻¹), so the graph measures only the residual M of the prediction P, and comp
 the new sweep's pose in the reference frame is ``M ∘ P``, whose covariance is the residual's
 carried through that composition (P is not uncertain there: it only placed the window).
 
-`SweepPeriod` tells a gap from an ordinary step: the sensor's period where known (a recording's
-fitted time base, `radar_odom.io.timebase`), else the median of the recent intervals, is the
-nominal period, and an interval beyond ``gap_factor`` × that is a gap. The median alone fails
-where a recording drops every other sweep for a while: its intervals all read two periods.
+Which step is a gap is the match's verdict (`radar_odom.odometry.match_stage`): the stamps give a count
+of periods (`radar_odom.odometry.stream_time.StreamClock`), and a readable match that agrees with one
+period a sweep overrules them.
 
 The prediction over a gap (`crossing_prior`) is the last velocity held as a constant *twist*: an
 arc, not the chord of one period scaled up (in a steady 13° bend the scaled chord puts the far
@@ -31,20 +30,17 @@ a single match can be wrong, measured: docs/gaps.md.
 from __future__ import annotations
 
 import math
-from collections import deque
 
 import numpy as np
 
 from ..se2 import se2_exp, se2_log, wrap_angle
 
-GAP = "gap"  # flag of an estimate whose interval was a gap (see `SweepPeriod`)
+GAP = "gap"  # flag of an estimate whose step spans dropped sweeps (the match's verdict, `match_stage`)
 NEW_SEGMENT = "new_segment"  # flag of the first sweep after a stamp jump no prediction can bridge
 # Beyond this a constant-velocity prediction cannot place the ±8 m search window: its 4 m/s² spread
 # alone is ½·a·t² = 200 m at 10 s (a one-hour stamp jump was extrapolated into a 24 km step). The
 # stream starts a new segment there: the sweep is kept at the last pose, unrelated to it.
 NEW_SEGMENT_GAP_S = 10.0
-GAP_FACTOR = 1.5  # an interval above 1.5 nominal periods: at least one sweep is missing
-_MIN_INTERVALS = 3  # intervals seen before the period is trusted
 # 1σ of the accelerations a road vehicle *sustains* over a gap of a second or two: forward (m/s²),
 # sideways (m/s²), yaw (rad/s²). Smaller than the motion prior's per-step figures (4 m/s², 40 °/s²),
 # which cover a jolt within one period; held over 1.75 s those would allow 7 m and 70°. A car
@@ -83,38 +79,6 @@ ARC_SD = 3.0
 # A residual beyond this fraction of the search window's half-width (translation, each axis) or
 # of its yaw range sits on the window's edge: the softmax read-out of a peak outside the window.
 EDGE_FRACTION = 0.85
-
-
-class SweepPeriod:
-    """The nominal interval between sweeps of a stream: ``known_s`` (the sensor's period, s) where
-    given, else the median of the last ``window`` ones."""
-
-    def __init__(self, window: int = 15, gap_factor: float = GAP_FACTOR, known_s: float | None = None):
-        self._dts: deque = deque(maxlen=int(window))
-        self.gap_factor = float(gap_factor)
-        self.known_s = None if known_s is None else float(known_s)
-
-    def reset(self) -> None:
-        self._dts.clear()
-
-    @property
-    def nominal_s(self) -> float | None:
-        """The known period (s), else the median interval, or None before three intervals are known."""
-        if self.known_s is not None:
-            return self.known_s
-        if len(self._dts) < _MIN_INTERVALS:
-            return None
-        return float(np.median(np.asarray(self._dts)))
-
-    def is_gap(self, interval_s: float) -> bool:
-        """Whether ``interval_s`` is longer than ``gap_factor`` nominal periods (False while the
-        period is unknown)."""
-        nominal = self.nominal_s
-        return nominal is not None and float(interval_s) > self.gap_factor * nominal
-
-    def observe(self, dt_s: float) -> None:
-        """Record one interval between consecutive sweeps (s)."""
-        self._dts.append(float(dt_s))
 
 
 def compose_residual(residual, residual_cov, predicted) -> tuple[np.ndarray, np.ndarray]:
@@ -325,3 +289,21 @@ def _group_mean(p, covariances, members) -> tuple[np.ndarray, np.ndarray]:
     dev[:, 2] = wrap_angle(dev[:, 2])
     cov = np.asarray(covariances[members[0]], dtype=np.float64).reshape(3, 3) + dev.T @ dev / len(members)
     return pose, 0.5 * (cov + cov.T)
+
+
+def drivable(pose, cov, interval_s: float, recent_yaw_rates, max_yaw_accel_rps2: float, sd: float = ARC_SD) -> bool:
+    """Whether a car could have driven a crossing ``pose`` (x m, y m, yaw rad; covariance ``cov`` [3, 3]) in
+    ``interval_s`` seconds, given the yaw rates (rad/s) of its last second (``recent_yaw_rates``; none: 0).
+
+    Its mean yaw rate over the gap must lie within the band those rates span widened by what a yaw
+    acceleration of ``max_yaw_accel_rps2`` adds on average over the gap (``a · interval / 2``: from the last
+    rate, the rate grows by at most ``a · t``), plus ``sd`` of the reading's own yaw σ per interval. A turn
+    that starts in the gap reaches its rate within the band; a wrong peak that reads a junction turn three
+    times as sharp as any car makes it does not (issue 50: −73.5° read for +13.5° over 1.75 s)."""
+    t = float(interval_s)
+    rates = np.asarray(list(recent_yaw_rates) or [0.0], dtype=np.float64)
+    yaw = float(wrap_angle(np.asarray(pose, dtype=np.float64).reshape(3)[2]))
+    yaw_sd = math.sqrt(max(float(np.asarray(cov, dtype=np.float64).reshape(3, 3)[2, 2]), 0.0))
+    slack = 0.5 * float(max_yaw_accel_rps2) * t + sd * yaw_sd / t
+    rate = yaw / t
+    return bool(rates.min() - slack <= rate <= rates.max() + slack)

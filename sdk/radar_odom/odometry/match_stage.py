@@ -1,96 +1,234 @@
 """The predict and match stages of a stream: the new sweep matched against the reference.
 
-`MatchStage.match` gives (pose, cov, new reference, its turn[, flags]) of the new sweep against the
-reference sweep, or None where the graph's output is not finite. Poses leave it in the vehicle's
-frame: a model with a mount yaw (``ModelInfo.mount_yaw_rad``, `radar-odom adapt`) has its matches
-turned by it. Three ways to match:
+`MatchStage.match` gives a `Match` (pose, covariance, new reference, its turn, the periods the step spans,
+flags) of the new sweep against the reference sweep, or None where the graph's output is not finite. Poses
+leave it in the vehicle's frame: a model with a mount yaw (``ModelInfo.mount_yaw_rad``, `radar-odom adapt`)
+has its matches turned by it.
 
-- across a gap (the reference further back than a gap, `gaps.SweepPeriod`, and the motion prior can
-  predict the motion over it): the sweep matched from several window centres around the prediction
-  (the last velocity held as an arc, `gaps.crossing_prior`), taken where the readings agree within
-  the gap's prior, else the prediction, flagged ``gated`` and ``prior_dominated`` (docs/gaps.md); an
-  agreed crossing is then matched once more with both sweeps de-skewed by the crossing's own velocity
-  (``deskew_gaps``, `MatchStage.deskew_crossing`): over a gap the two sweeps' motion distortion does not
-  cancel as it does between consecutive sweeps;
-- with ``centre_yaw``: one match, the new sweep drawn turned by the predicted yaw
-  (`radar_odom.odometry.centring`);
-- otherwise one match of the sweep as drawn.
+The match decides (docs/gaps.md, docs/time-base.md). Every step is first matched as the graph reads it, the
+window where the graph puts it (`match_plain`; with ``centre_yaw`` the new sweep drawn turned by the
+predicted yaw). Where that match is readable (sharp, not on the window's edge: `readable`) and agrees with
+one period of motion per sweep (`agrees`), nothing was dropped, whatever the stamps say (a late stamp, a
+stall, a catch-up). Where the stamps put no dropped sweep there, the match is the step as it is (the motion
+prior's gate judges it). Where they do, the step is a gap crossing (`cross_gap`):
 
-`MatchStage.readings_around` (the new sweep matched with the window centred around a pose) is also
-what the time stage's whole periods decide a sweep's time with (`whole_periods.decide_time`).
+1. the match with the window centred on the prediction over the stamps' periods (the last velocity held
+   as an arc, `gaps.crossing_prior`) and the plain match read the same motion from two window placements,
+   the gap's prior allows it and a car could drive it (`gaps.drivable`): the step, flagged ``gap``;
+2. else, flagged ``uncertain`` with the gap prior's covariance added to what it reports (``Match.cover``):
+   the centred match where a match centred on it finds it again (two graph calls; de-skewed by its own
+   velocity with ``GapConfig.deskew``, `deskew_crossing`), else what the readings from several window
+   centres agree on (``GapConfig.cross``; `gaps.crossing_readings`, `gaps.consensus`), else the centred
+   match, else the plain one; each only where the gap's prior allows it and a car could drive it (near the
+   arc its yaw makes, `gaps.off_the_arc`, at a yaw rate it can reach, `gaps.drivable`): a gap prediction
+   does not replace a sharp match without evidence;
+3. else the prediction, flagged ``uncertain``, ``gated`` and ``prior_dominated``.
 
-The graph calls and the stream's state stay the odometer's: the stage takes the graph calls as
-callables (``run_pair``, ``run_first``, ``sweep_input``) and each call the reference's turn and the
-lead of the velocity's interval; it reads the odometer's `SweepPeriod` and `MotionPrior`, never
-changes them.
+The plain mode (``match_decides`` False) matches with the window centred on the stamps' prediction where they
+say sweeps were dropped, else where the graph puts it, and takes that match as it is.
+
+`MatchStage.readings_around` (the new sweep matched with the window centred around a pose) is the gap
+crossing's search. The graph calls and the stream's state stay the odometer's: the stage takes the graph
+calls as callables (``run_pair``, ``run_first``, ``sweep_input``); it reads the odometer's `MotionPrior`,
+never changes it.
 """
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..se2 import invert, se2, to_xyyaw, turn_frame
 from . import gaps
 from .centring import MAX_TURN_RAD, next_turn, uncentre
-from .motion_prior import GATED, PRIOR_DOMINATED
+from .motion_prior import GATED, PRIOR_DOMINATED, innovation, mahalanobis_d2
 from .sweep_input import SweepMotion, deskew_twist
 
 NO_AGREEMENT = object()  # `MatchStage._agreed`: the readings agreed on nothing the gap's prior allows
 CROSSING_DESKEW_ROUNDS = 2  # de-skewed re-matches of an agreed crossing, each with the velocity of the one before
+UNCERTAIN = "uncertain"
+# Where the stamps say sweeps were dropped, a readable match overrules them only within χ²₃ at 95 % of one
+# period of motion a sweep (the motion prior's gate, 99.9 %, let a wrong peak 0.8 m short of a 1.5 m step
+# read a 7-period gap as no gap: a 6-sweep crossing of a 13° bend, seed 10000 of tests/test_deskew_gaps.py)
+NOTHING_DROPPED_D2 = 7.81  # a crossing no single readable match confirmed: its covariance covers the gap's prior
+
+
+@dataclass
+class Match:
+    """One step's match: ``pose`` (x m, y m, yaw rad; vehicle frame) of the new sweep in the reference's
+    frame with its ``cov`` [3, 3]; ``new_ref`` the new sweep as the graph's next reference (drawn in its own
+    frame, turned by ``turn``); ``periods`` the sensor periods the step spans; ``flags`` the stage's verdict;
+    ``cover`` [3, 3] or None: added to the reported covariance (an uncertain crossing)."""
+
+    pose: np.ndarray
+    cov: np.ndarray
+    new_ref: np.ndarray
+    turn: float
+    periods: int
+    flags: frozenset = field(default_factory=frozenset)
+    cover: np.ndarray | None = None
 
 
 class MatchStage:
-    """How a new sweep is matched against the reference: across a gap, centred on the predicted yaw, or plain.
+    """How a new sweep is matched against the reference (see the module docstring).
 
     Args:
         profile: the model's `GridProfile` (the window, the readings' agreement tolerances).
         mount_yaw_rad: the model's mount yaw (``ModelInfo.mount_yaw_rad``): radar frame → vehicle's.
-        movable: the model's sweeps can be drawn moved (not polar, not sweep form); else no gap crossing.
+        movable: the model's sweeps can be drawn moved (not polar, not sweep form); else no centring or crossing.
         centre_yaw: draw the new sweep turned by the predicted yaw (already False where not ``movable``).
-        period: the odometer's `gaps.SweepPeriod` (what is a gap).
+        config: the odometer's `OdometerConfig` (``time.match_decides``, ``gaps``).
         prior: the odometer's `MotionPrior` (its velocity predicts the motion; read only).
-        run_pair: ``(graph input, keep_reference=False) -> (pose, cov, new reference) or None``: the
-            graph's match against the current reference (`GraphStep.match`).
-        run_first: ``graph input -> reference state``: a sweep made a reference (`GraphStep.first`).
+        run_pair: ``(graph input, keep_reference=False) -> (pose, cov, new reference) or None``.
+        run_first: ``graph input -> reference state`` (`GraphStep.first`).
         sweep_input: ``(scan, SweepMotion) -> graph input``: the sweep drawn moved (`sweep_input.graph_input`).
         run_against: ``(graph input, reference state) -> (pose, cov, new reference) or None``: the graph's
-            match against another reference than the current one (`GraphStep.match`); with ``deskew_gaps``.
-        deskew_gaps: re-match an agreed gap crossing with both sweeps de-skewed by its own velocity
-            (`deskew_crossing`); needs ``run_against`` and the reference sweep (``match(ref_scan=…)``).
+            match against another reference than the current one (the de-skewed crossing).
     """
 
-    def __init__(self, profile, mount_yaw_rad: float, movable: bool, centre_yaw: bool, period, prior,
+    def __init__(self, profile, mount_yaw_rad: float, movable: bool, centre_yaw: bool, config, prior,
                  run_pair: Callable, run_first: Callable, sweep_input: Callable,
-                 run_against: Callable | None = None, deskew_gaps: bool = False):
+                 run_against: Callable | None = None):
         self.profile = profile
         self.mount_yaw_rad = mount_yaw_rad
         self.movable = bool(movable)
         self.centre_yaw = bool(centre_yaw)
-        self._period = period
+        self.period_s = config.time.prior_period_s
+        self.match_decides = config.time.match_decides
+        self.cross = config.gaps.cross and self.movable
+        self.max_yaw_accel = config.gaps.max_yaw_accel_rps2
+        self._gate_d2 = (config.prior or prior.config).gate_d2
         self._prior = prior
         self._run_pair = run_pair
         self._run_first = run_first
         self._sweep_input = sweep_input
         self._run_against = run_against
-        self.deskew_gaps = bool(deskew_gaps) and run_against is not None and self.movable
+        self.deskew_gaps = config.gaps.deskew and run_against is not None and self.cross
+        self._window_m = profile.translation_cells * profile.resolution_m
+        self._sharp_m = gaps.agreement(profile)[2]
 
-    def match(self, scan, x: np.ndarray, twist, interval_s: float, lead_s: float, ref_turn: float,
-              ref_scan=None):
-        """(pose, cov, new reference, its turn[, flags]) of the new sweep (graph input ``x``, drawn with
-        ``twist``) against the reference ``interval_s`` back (drawn turned by ``ref_turn``; ``ref_scan``:
-        that sweep as recorded, for the de-skewed crossing), or None if non-finite; ``lead_s``: seconds
-        from the end of the velocity's interval to the reference.
-        Across a gap the prior can predict, `cross_gap`; else one match (`match_plain`)."""
-        if self.movable and self._period.is_gap(interval_s) and self._prior.ready:
-            pred = gaps.crossing_prior(*self.prior_step(), interval_s, lead_s)
-            if pred is not None:
-                return self.cross_gap(scan, x, twist, pred, ref_turn, ref_scan, interval_s)
-        return self.match_plain(scan, x, twist, interval_s, lead_s, ref_turn)
+    def match(self, scan, x: np.ndarray, twist, sweeps: int, stamp_periods: int, lead_s: float, ref_turn: float,
+              ref_scan=None, recent_yaw_rates=()) -> Match | None:
+        """The `Match` of the new sweep (graph input ``x``, drawn with ``twist``) against the reference
+        ``sweeps`` sweeps back (drawn turned by ``ref_turn``; ``ref_scan``: that sweep as recorded), the stamps
+        putting ``stamp_periods`` periods between them; ``lead_s``: seconds from the end of the velocity's
+        interval to the reference; ``recent_yaw_rates``: the yaw rates (rad/s) of the last second's steps.
+        None where the graph's output is not finite."""
+        k_stamp = max(int(sweeps), int(stamp_periods))
+        by_stamps = self.movable and self._prior.ready and k_stamp > sweeps
+        if by_stamps and not self.match_decides:  # plain: the window where the stamps' prediction puts it
+            pred = gaps.crossing_prior(*self.prior_step(), k_stamp * self.period_s, lead_s)
+            centred = self.centred(scan, twist, pred[0], ref_turn)
+            new_ref = None if centred is None else self._run_first(x)
+            if centred is not None and np.all(np.isfinite(new_ref)):
+                return Match(centred[0], centred[1], new_ref, 0.0, k_stamp, frozenset({gaps.GAP}))
+        plain = self.match_plain(scan, x, twist, sweeps * self.period_s, lead_s, ref_turn)
+        if plain is None:
+            return None
+        pose, cov, new_ref, turn = plain
+        residual = turn_frame(pose, None, -self.mount_yaw_rad)[0] - (0.0, 0.0, turn - ref_turn)
+        readable = self.readable(residual, cov)
+        if not (self.match_decides and self._prior.ready):
+            return Match(pose, cov, new_ref, turn, k_stamp, frozenset({gaps.GAP} if k_stamp > sweeps else ()))
+        if readable and self.agrees(pose, cov, sweeps, lead_s, NOTHING_DROPPED_D2 if by_stamps else self._gate_d2):
+            return Match(pose, cov, new_ref, turn, sweeps)  # one period a sweep: nothing was dropped
+        if not by_stamps:
+            return Match(pose, cov, new_ref, turn, k_stamp)
+        plain = (pose, cov) if readable else None
+        return self.cross_gap(scan, twist, k_stamp, lead_s, ref_turn, ref_scan, new_ref, recent_yaw_rates, plain)
+
+    def readable(self, residual, cov, fraction: float = gaps.EDGE_FRACTION) -> bool:
+        """Whether a match's residual (radar frame, in the window it was drawn in) lies within ``fraction``
+        of the window (`gaps.at_window_edge`) and its translation is sharp (`gaps.is_sharp` within the
+        crossing's `SHARP_CELLS`)."""
+        return (not gaps.at_window_edge(residual, self._window_m, self.profile.rotation_range_rad, fraction)
+                and gaps.is_sharp(cov, self._sharp_m))
+
+    def agrees(self, pose, cov, periods: int, lead_s: float, max_d2: float) -> bool:
+        """Whether a match (pose, cov) lies within ``max_d2`` (d²) of the prediction over ``periods`` periods:
+        the motion prior's for consecutive sweeps, the gap's (`gaps.crossing_prior`) across dropped ones."""
+        interval_s = periods * self.period_s
+        pred = (self._prior.predict(interval_s, lead_s) if periods == 1
+                else gaps.crossing_prior(*self.prior_step(), interval_s, lead_s))
+        return mahalanobis_d2(innovation(pose, pred[0]), np.asarray(cov) + pred[1]) <= float(max_d2)
+
+    def centred(self, scan, twist, predicted, ref_turn: float):
+        """(pose, cov) of one match with the window centred on ``predicted`` (vehicle frame), or None where
+        it is not finite or not readable."""
+        a_ref = ref_turn
+        centre = to_xyyaw(se2(0.0, 0.0, -a_ref) @ se2(*turn_frame(predicted, None, -self.mount_yaw_rad)[0]))
+        drawn = self._sweep_input(scan, SweepMotion(twist=twist, frame_pose=tuple(to_xyyaw(invert(se2(*centre))))))
+        out = self._run_pair(drawn, keep_reference=True)
+        if out is None or not self.readable(out[0], out[1]):
+            return None
+        moved = gaps.compose_residual(out[0], out[1], centre)
+        return turn_frame(*uncentre(*moved, a_ref, 0.0), self.mount_yaw_rad)
+
+    def cross_gap(self, scan, twist, periods: int, lead_s: float, ref_turn: float, ref_scan, new_ref,
+                  recent_yaw_rates=(), plain=None) -> Match:
+        """The `Match` of a step the stamps put ``periods`` periods after the reference and the plain match did
+        not read as consecutive (steps 1-3 of the module docstring); ``new_ref``: the new sweep in its own frame
+        (the plain match's); ``plain``: (pose, cov) of the plain match where it was readable, else None.
+
+        Confident (flagged ``gap`` only) where the match centred on the prediction and the plain match read the
+        same motion from two window placements, a car could drive it and the gap's prior allows it. Otherwise,
+        flagged ``uncertain`` with the gap prior's covariance added: what the readings from several centres
+        agree on, else the centred match, else the plain one (a gap prediction does not replace a sharp match
+        without evidence), else the prediction (``gated``)."""
+        interval_s = periods * self.period_s
+        pred = gaps.crossing_prior(*self.prior_step(), interval_s, lead_s)
+
+        def plausible(reading):
+            return (reading is not None and gaps.crossing_d2(*reading, *pred) <= self._gate_d2
+                    and not gaps.off_the_arc(*reading)
+                    and gaps.drivable(*reading, interval_s, recent_yaw_rates, self.max_yaw_accel))
+
+        centred = self.centred(scan, twist, pred[0], ref_turn)
+        tol_m, tol_rad, _ = gaps.agreement(self.profile)
+        if plausible(centred) and plain is not None and gaps.poses_agree(centred[0], plain[0], tol_m, tol_rad):
+            return Match(centred[0], centred[1], new_ref, 0.0, periods, frozenset({gaps.GAP}))
+        uncertain = frozenset({gaps.GAP, UNCERTAIN})
+        if plausible(centred):  # found again where it was found: a peak, not the window's centre (two calls)
+            again = self.centred(scan, twist, centred[0], ref_turn)
+            if plausible(again) and gaps.poses_agree(again[0], centred[0], tol_m, tol_rad):
+                pose = self.deskew_crossing(scan, ref_scan, again[0], interval_s, ref_turn) if (
+                    self.deskew_gaps and ref_scan is not None) else None
+                pose = again[0] if pose is None or not plausible((pose, again[1])) else pose
+                return Match(pose, again[1], new_ref, 0.0, periods, uncertain, pred[1])
+        agreed = self._crossing(scan, twist, pred, ref_turn, ref_scan, interval_s, plausible) if self.cross else None
+        for reading in (agreed, centred, plain):
+            if reading is not None and reading is not NO_AGREEMENT and plausible(reading):
+                return Match(reading[0], reading[1], new_ref, 0.0, periods, uncertain, pred[1])
+        # nothing read agrees with the gap's prior and a car's motion: the prediction
+        return Match(pred[0], pred[1], new_ref, 0.0, periods, uncertain | {GATED, PRIOR_DOMINATED}, pred[1])
+
+    def _crossing(self, scan, twist, pred, ref_turn: float, ref_scan, interval_s: float, plausible):
+        """(pose, cov) the readings from several window centres agree on (de-skewed where ``deskew_gaps``),
+        `NO_AGREEMENT`, or None where no match was finite."""
+        deskew = self.deskew_gaps and ref_scan is not None
+        drawn_with, reference = twist, None
+        if deskew:
+            # the readings drawn de-skewed by the prediction's velocity (the reference redrawn with it)
+            radar = turn_frame(np.asarray(pred[0], dtype=np.float64), None, -self.mount_yaw_rad)[0]
+            predicted = deskew_twist(gaps.crossing_velocity(radar, interval_s), scan, self.profile)
+            reference = None if predicted is None else self.draw_reference(ref_scan, predicted, ref_turn)
+            drawn_with = twist if reference is None else predicted
+        agreed = self._agreed(self.readings_around(scan, drawn_with, pred[0], ref_turn, reference), pred, plausible)
+        if reference is not None and (agreed is None or agreed is NO_AGREEMENT):
+            # the readings drawn de-skewed found nothing to agree on: the readings as recorded
+            agreed = self._agreed(self.readings_around(scan, twist, pred[0], ref_turn), pred, plausible)
+        if agreed is None or agreed is NO_AGREEMENT:
+            return agreed
+        if deskew:
+            pose = self.deskew_crossing(scan, ref_scan, agreed[0], interval_s, ref_turn)
+            if pose is not None and gaps.crossing_d2(pose, agreed[1], *pred) <= self._gate_d2:
+                return pose, agreed[1]
+        return agreed[0], agreed[1]
 
     def match_plain(self, scan, x: np.ndarray, twist, interval_s: float, lead_s: float, ref_turn: float):
-        """(pose, cov, new reference, its turn) of one match of the new sweep against the reference
-        (drawn turned by the predicted yaw with ``centre_yaw``), or None if non-finite."""
+        """(pose, cov, new reference, its turn) of one match of the new sweep against the reference as the
+        graph reads it (drawn turned by the predicted yaw with ``centre_yaw``), or None if non-finite."""
         if self.centre_yaw:
             out = self.match_centred(scan, x, twist, interval_s, lead_s, ref_turn)
             if out is None:
@@ -105,42 +243,7 @@ class MatchStage:
             return out
         return (*turn_frame(out[0], out[1], mount), out[2], out[3])
 
-    def cross_gap(self, scan, x: np.ndarray, twist, pred, ref_turn: float, ref_scan=None,
-                  interval_s: float | None = None):
-        """(pose, cov, new reference, 0.0[, flags]) of a sweep across a gap, ``pred`` the gap's prior
-        (pose, cov): the sweep matched from several window centres around the prediction
-        (`gaps.crossing_readings`); taken where readings agree within the prior (`gaps.consensus`,
-        `gaps.crossing_d2`), else the prediction, flagged ``gated`` and ``prior_dominated``. An agreed
-        crossing is matched again de-skewed (`deskew_crossing`) where ``deskew_gaps`` and ``ref_scan``
-        (the reference as recorded) and ``interval_s`` are given. None where no match is finite or the
-        new reference is not. The new reference is the sweep in its own frame (drawn with ``twist``)."""
-        deskew = self.deskew_gaps and ref_scan is not None and bool(interval_s)
-        drawn_with, reference = twist, None
-        if deskew:
-            # the readings drawn de-skewed by the prediction's velocity (the reference redrawn with it)
-            radar = turn_frame(np.asarray(pred[0], dtype=np.float64), None, -self.mount_yaw_rad)[0]
-            predicted = deskew_twist(gaps.crossing_velocity(radar, interval_s), scan, self.profile)
-            reference = None if predicted is None else self.draw_reference(ref_scan, predicted, ref_turn)
-            drawn_with = twist if reference is None else predicted
-        agreed = self._agreed(self.readings_around(scan, drawn_with, pred[0], ref_turn, reference), pred)
-        if reference is not None and (agreed is None or agreed is NO_AGREEMENT):
-            # the readings drawn de-skewed found nothing to agree on: the readings as recorded, as before
-            agreed = self._agreed(self.readings_around(scan, twist, pred[0], ref_turn), pred)
-        if agreed is None:
-            return None
-        new_ref = self._run_first(x)
-        if not np.all(np.isfinite(new_ref)):
-            return None
-        if agreed is NO_AGREEMENT:
-            # no centre agreed, or they agree on a motion the gap's prior rules out: keep the prediction
-            return pred[0], pred[1], new_ref, 0.0, {GATED, PRIOR_DOMINATED}
-        if deskew:
-            pose = self.deskew_crossing(scan, ref_scan, agreed[0], interval_s, ref_turn)
-            if pose is not None and gaps.crossing_d2(pose, agreed[1], *pred) <= self._prior.config.gate_d2:
-                return pose, agreed[1], new_ref, 0.0
-        return agreed[0], agreed[1], new_ref, 0.0
-
-    def _agreed(self, crossed, pred):
+    def _agreed(self, crossed, pred, plausible=None):
         """The readings' consensus (pose, cov, members) within the gap's prior ``pred``, readings off a road
         vehicle's arc left out (`gaps.off_the_arc`); `NO_AGREEMENT` where no centre agreed or they agree on a
         motion the prior rules out; None where no match was finite."""
@@ -149,7 +252,9 @@ class MatchStage:
         crossed = [c for c in crossed if not gaps.off_the_arc(c[0], c[1])]  # not a motion a car makes
         tol_m, tol_rad, sharp_m = gaps.agreement(self.profile)
         agreed = gaps.consensus([c[0] for c in crossed], [c[1] for c in crossed], tol_m, tol_rad, sharp_m, prior=pred)
-        if agreed is None or gaps.crossing_d2(agreed[0], agreed[1], *pred) > self._prior.config.gate_d2:
+        if agreed is None or gaps.crossing_d2(agreed[0], agreed[1], *pred) > self._gate_d2:
+            return NO_AGREEMENT
+        if plausible is not None and not plausible(agreed[:2]):
             return NO_AGREEMENT
         return agreed
 

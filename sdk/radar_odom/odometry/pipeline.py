@@ -308,7 +308,7 @@ class EstimateStream:
                         if name_us is not None:
                             name_offset_us = scan.timestamp_us - name_us
                         self.wall_s = time.perf_counter() - t0
-                        # the trajectory's time: the match may have decided another whole period (`whole_periods`)
+                        # the trajectory's time: the sweep's stamp as given
                         yield i, (scan.timestamp_us if est is None else est.timestamp_us), est
                         continue
                 reason, exc = problem

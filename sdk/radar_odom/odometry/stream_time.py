@@ -60,3 +60,61 @@ def azimuth_count(scan: RadarScan, stream_azimuths: int | None) -> tuple[int, st
     if abs(count - int(stream_azimuths)) > MAX_AZIMUTH_COUNT_CHANGE * int(stream_azimuths):
         return int(stream_azimuths), AZIMUTH_COUNT
     return int(stream_azimuths), None
+
+
+# an interval is read as whole periods by rounding; below this many one-period intervals the median is not
+# trusted and every interval counts as one period
+MIN_PERIOD_INTERVALS = 3
+# a sweep whose azimuth times span a turn of this long at least (s) tells the sensor's period itself
+MIN_ROTATION_S = 0.05
+
+
+class StreamClock:
+    """How many of the sensor's periods the stamps put between sweeps.
+
+    The period is ``known_s`` (the sensor's, given), else the rotation time of the stream's first sweep where
+    its azimuth times span a turn (Oxford, Boreas, the simulator), else the median of the last ``window``
+    intervals the odometer took as one period (a host's catch-up at 0.9 of the period moves it, and it follows;
+    a stall's long interval is two periods and stays out). Stamps only advise: the match decides how many
+    periods a step spans (`radar_odom.odometry.match_stage`), and `observe` hears its verdict.
+    """
+
+    def __init__(self, known_s: float | None = None, window: int = 15):
+        from collections import deque
+
+        self.known_s = None if known_s is None else float(known_s)
+        self._rotation_s: float | None = None
+        self._one_period: deque = deque(maxlen=int(window))
+
+    def reset(self) -> None:
+        self._rotation_s = None
+        self._one_period.clear()
+
+    def adopt_rotation(self, scan: RadarScan) -> None:
+        """The stream's first sweep: its own rotation time, where its azimuth times span a turn."""
+        t = np.asarray(scan.timestamps_us, dtype=np.float64)
+        a = int(t.size)
+        if a >= 2 and self._rotation_s is None:
+            span = (t.max() - t.min()) * 1e-6 * a / (a - 1)
+            self._rotation_s = span if span >= MIN_ROTATION_S else None
+
+    @property
+    def period_s(self) -> float | None:
+        """The period (s) stamps are read in, or None while unknown."""
+        if self.known_s is not None:
+            return self.known_s
+        if self._rotation_s is not None:
+            return self._rotation_s
+        if len(self._one_period) < MIN_PERIOD_INTERVALS:
+            return None
+        return float(np.median(np.asarray(self._one_period)))
+
+    def periods(self, interval_s: float) -> int:
+        """The whole periods (≥ 1) the stamps put in ``interval_s`` (1 while the period is unknown)."""
+        p = self.period_s
+        return 1 if p is None else max(1, int(round(float(interval_s) / p)))
+
+    def observe(self, interval_s: float, periods: int) -> None:
+        """A step's stamp interval and the periods the odometer took it to span."""
+        if int(periods) == 1:
+            self._one_period.append(float(interval_s))

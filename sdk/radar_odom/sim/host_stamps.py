@@ -4,7 +4,7 @@ The simulator times every sweep exactly (``RadarScan.timestamp_us`` is its first
 A RADIATE or ROS recording host stamps a sweep when it receives it: late now and then, with a few ms
 of jitter, and never stamps the sweeps it dropped. These two pure functions make such a recording from
 a simulated drive, with the truth still known, to test a reader's time base
-(`radar_odom.io.timebase`) and what the odometry makes of it (`radar_odom.odometry.whole_periods`).
+(`radar_odom.io.timebase`) and what the odometry makes of it (`radar_odom.odometry.match_stage`: the match decides).
 """
 from __future__ import annotations
 
