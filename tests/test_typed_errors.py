@@ -8,10 +8,11 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 
 from radar_odom.commands.cli import main
-from radar_odom.errors import ConfigError
+from radar_odom.errors import ConfigError, InvalidModelError, ModelNotFoundError, RadarOdomError
 
 NO_RAY = importlib.util.find_spec("ray") is None
 needs_ray = pytest.mark.skipif(NO_RAY, reason='the fleet extra (Ray) is not installed: pip install -e ".[fleet]"')
@@ -170,3 +171,56 @@ def test_train_called_with_a_truncated_state_raises_the_same_checkpoint_error(tm
     cfg = TrainConfig(output=str(tmp_path / "m.pt"), profile=tiny, epochs=1, batch=4, threads=1, resume=True)
     with pytest.raises(CheckpointError, match="m.state.pt: the resume state cannot be read"):
         train(cfg, [D.toy_drive(tiny, 6, 1)], [D.toy_drive(tiny, 6, 2)])
+
+
+# ------------------------------------------------------------------------------------------ API errors
+def test_openvino_config_that_is_no_dict_is_a_config_error(tiny_model):
+    from radar_odom.runtimes import OpenVinoModel
+
+    for config in (["f32"], "f32", {1: "x"}):
+        with pytest.raises(ConfigError, match="config must be a dict of OpenVINO compile properties"):
+            OpenVinoModel(tiny_model, config=config)
+    with pytest.raises(ConfigError, match="device"):
+        OpenVinoModel(tiny_model, device=0)
+
+
+def test_openvino_run_with_a_wrong_feed_is_onnxruntimes_typed_error(tiny_model):
+    pytest.importorskip("openvino", reason="openvino (the dev extra) is not installed")
+    from radar_odom.onnx_model import OnnxModel
+    from radar_odom.runtimes import OpenVinoModel
+
+    ort, ov = OnnxModel(tiny_model, threads=1), OpenVinoModel(tiny_model, threads=1)
+    names = list(ort.info.inputs)
+    wrong_shape = {n: np.zeros((1, 2), np.float32) for n in names}
+    for feed in ({"nope": np.zeros(2, np.float32)}, {}, wrong_shape, {names[0]: np.zeros((1, 2), np.float32)}):
+        with pytest.raises(InvalidModelError):
+            ort.run(feed)
+        with pytest.raises(InvalidModelError, match="OpenVINO") as info:
+            ov.run(feed)
+        assert "\n" not in str(info.value)
+    with pytest.raises(InvalidModelError, match="expecting"):  # OpenVINO's reason, its own last line
+        ov.run(wrong_shape)
+
+
+def test_wrapping_a_garbage_file_in_the_sweep_form_is_an_invalid_model_error(tmp_path):
+    pytest.importorskip("onnx", reason="onnx (the export extra) builds the sweep form")
+    from radar_odom_export.sweep_form import wrap_stream_model
+
+    garbage = tmp_path / "garbage.onnx"
+    garbage.write_bytes(b"\x08\x07garbage\xff\xfe not protobuf" * 20)
+    with pytest.raises(InvalidModelError, match=r"garbage.onnx: not a readable ONNX model"):
+        wrap_stream_model(garbage)
+    with pytest.raises(ModelNotFoundError):
+        wrap_stream_model(tmp_path / "absent.onnx")
+    with pytest.raises(RadarOdomError, match="onnx.ModelProto or a path"):
+        wrap_stream_model(b"bytes")
+
+
+@pytest.mark.parametrize("hint", ["250000", float("nan"), float("inf"), 0, -250000.0, True, [250000]])
+def test_a_time_base_hint_that_is_no_period_is_a_config_error(hint):
+    from radar_odom.io.timebase import fit_time_base
+
+    stamps = np.arange(40, dtype=np.int64) * 250_000
+    with pytest.raises(ConfigError, match="period_hint_us"):
+        fit_time_base(stamps, period_hint_us=hint)
+    assert fit_time_base(stamps, period_hint_us=np.float64(250000.0)).period_us == pytest.approx(250000.0)

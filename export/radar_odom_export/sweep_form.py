@@ -195,14 +195,38 @@ def _default_opset(proto) -> int:
     raise ExportError("the stream graph declares no default-domain opset")
 
 
+def _load_onnx(path):
+    """``onnx.load`` of a model path, its failures typed (protobuf's DecodeError for garbage, ...)."""
+    import os
+
+    import onnx
+
+    from radar_odom.errors import InputTypeError, InvalidModelError, ModelNotFoundError
+
+    if not isinstance(path, (str, os.PathLike)):
+        raise InputTypeError(f"the stream-form model must be an onnx.ModelProto or a path to an .onnx file, got "
+                             f"{type(path).__name__}")
+    if not Path(path).is_file():
+        raise ModelNotFoundError(f"{path}: no such model file")
+    try:
+        return onnx.load(str(path))
+    except Exception as exc:  # noqa: BLE001 - protobuf's DecodeError, onnx's own, OSError: one typed error
+        lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
+        detail = (lines[0] if lines else type(exc).__name__)[:200]
+        raise InvalidModelError(f"{path}: not a readable ONNX model ({detail}); give the stream-form .onnx that "
+                                "radar-odom export wrote") from None
+
+
 def wrap_stream_model(stream):
     """A sweep-form ``onnx.ModelProto`` from a Cartesian stream-form model (a ModelProto or a path): the
     drawing graph (`sweep_frontend`) feeding its ``cart`` input, its metadata carried over with form
-    ``sweep``. `ExportError` for a model that is not a Cartesian stream-form radar-odom model."""
+    ``sweep``. `ExportError` for a model that is not a Cartesian stream-form radar-odom model,
+    `InvalidModelError` for a file that is no ONNX model (truncated, garbage), `ModelNotFoundError` for a
+    path that is not there, `InputTypeError` for anything but a ModelProto or a path."""
     import onnx
     from onnx import compose
 
-    proto = stream if isinstance(stream, onnx.ModelProto) else onnx.load(str(stream))
+    proto = stream if isinstance(stream, onnx.ModelProto) else _load_onnx(stream)
     meta = {p.key: p.value for p in proto.metadata_props}
     info = ModelInfo.from_metadata(meta, source="stream graph")
     if info.form != "stream" or info.profile.input_kind != "cartesian":

@@ -60,6 +60,13 @@ class OpenVinoModel:
     """
 
     def __init__(self, path, threads: int | None = None, device: str = "CPU", config: dict | None = None):
+        from collections.abc import Mapping
+
+        if not isinstance(device, str) or not device.strip():
+            raise ConfigError(f"device must be an OpenVINO device name such as 'CPU', got {device!r}")
+        if config is not None and not (isinstance(config, Mapping) and all(isinstance(k, str) for k in config)):
+            raise ConfigError(f"config must be a dict of OpenVINO compile properties (e.g. {OPENVINO_CPU_CONFIG}), "
+                              f"got {config!r}")
         try:
             import openvino as ov
         except ImportError as exc:
@@ -80,8 +87,19 @@ class OpenVinoModel:
         self._outputs = {name: self._compiled.output(name) for name in self.output_names}
 
     def run(self, feeds: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        """Outputs by name for float32 ``feeds`` by input name (`OnnxModel.run`'s contract); arrays are copies."""
-        result = self._request.infer(feeds)
+        """Outputs by name for float32 ``feeds`` by input name (`OnnxModel.run`'s contract: a feed that does not
+        fit the graph is an `InvalidModelError`, as there); arrays are copies."""
+        names = list(feeds) if isinstance(feeds, dict) else None
+        if names is None or sorted(names) != sorted(self.info.inputs):
+            given = "not a dict" if names is None else f"given {names}"
+            raise InvalidModelError(f"{self.path}: OpenVINO cannot run the model on this feed (the graph's inputs "
+                                    f"are {list(self.info.inputs)}, {given})")
+        try:
+            result = self._request.infer(feeds)
+        except Exception as exc:  # noqa: BLE001 - OpenVINO's RuntimeError: where it checked, then what failed
+            lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
+            detail = (lines[-1] if lines else type(exc).__name__)[:200]
+            raise InvalidModelError(f"{self.path}: OpenVINO failed running the model ({detail})") from None
         return {name: np.array(result[port]) for name, port in self._outputs.items()}
 
 
