@@ -173,6 +173,38 @@ def test_train_called_with_a_truncated_state_raises_the_same_checkpoint_error(tm
         train(cfg, [D.toy_drive(tiny, 6, 1)], [D.toy_drive(tiny, 6, 2)])
 
 
+# ------------------------------------------------------------------------------------------ --minutes
+@pytest.mark.torch
+@pytest.mark.skipif(NO_TORCH, reason="train needs the export extra (torch)")
+@pytest.mark.parametrize("minutes", ["1e12", "1e308", "10081"])
+def test_train_refuses_a_budget_beyond_a_week_in_one_line(minutes, tmp_path, capsys):
+    assert main(["train", "-o", str(tmp_path / "m.pt"), "--minutes", minutes]) == 1
+    assert "budgets beyond a week (10080 minutes) are refused" in one_error_line(capsys, "train")
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.torch
+@pytest.mark.skipif(NO_TORCH, reason="adapt needs the export extra (torch)")
+@pytest.mark.parametrize("minutes", ["1e12", "1e308"])
+def test_adapt_refuses_a_budget_beyond_a_week_in_one_line(minutes, drive, tmp_path, capsys, monkeypatch):
+    import radar_odom_export.adapt as adapt_mod
+
+    monkeypatch.setattr(adapt_mod, "read_recording", lambda *a, **k: pytest.fail("read before the check"))
+    assert main(["adapt", str(drive), "-o", str(tmp_path / "m.onnx"), "--minutes", minutes]) == 1
+    assert "budgets beyond a week" in one_error_line(capsys, "adapt")
+
+
+def test_a_week_is_the_longest_budget():
+    from radar_odom.budgets import MAX_BUDGET_MINUTES, check_budget_minutes
+
+    assert check_budget_minutes(MAX_BUDGET_MINUTES) == 10080.0 and check_budget_minutes(0) == 0.0
+    for bad in (MAX_BUDGET_MINUTES + 1, float("inf"), float("nan"), -1.0, True, "20"):
+        with pytest.raises(ConfigError, match="--minutes"):
+            check_budget_minutes(bad)
+    with pytest.raises(ConfigError, match="> 0"):
+        check_budget_minutes(0, allow_zero=False)
+
+
 # ------------------------------------------------------------------------------------------ API errors
 def test_openvino_config_that_is_no_dict_is_a_config_error(tiny_model):
     from radar_odom.runtimes import OpenVinoModel

@@ -350,6 +350,7 @@ def check_adapt_config(cfg: AdaptConfig, output) -> None:
     before anything is read: a non-finite or non-positive budget or learning rate, a real share or held-out share
     outside (0, 1), a pair span below 1 sweep, ``resume`` with no state to resume from, an output that is not an
     .onnx file or cannot be written."""
+    from radar_odom.budgets import check_budget_minutes
     from radar_odom.outputs import check_output_path
 
     from .train import state_path
@@ -359,6 +360,7 @@ def check_adapt_config(cfg: AdaptConfig, output) -> None:
             raise ConfigError(f"{flag} must be a positive number, got {value!r}")
 
     positive(cfg.minutes, "--minutes")
+    check_budget_minutes(cfg.minutes, "--minutes", allow_zero=False)  # and at most a week
     positive(cfg.lr, "--lr")
     for value, flag in ((cfg.real_fraction, "--real-fraction"), (cfg.holdout_fraction, "--holdout")):
         if not (isinstance(value, (int, float)) and 0.0 < value < 1.0):

@@ -915,8 +915,14 @@ def run_from_args(args) -> dict:
 
     started = time.perf_counter()
     minutes = None if not args.minutes else float(args.minutes)
-    if args.minutes is not None and not (math.isfinite(args.minutes) and args.minutes >= 0):
-        raise DataSpecError(f"--minutes {args.minutes}: give a budget in minutes ≥ 0 (0: no budget, --epochs alone)")
+    if args.minutes is not None:  # ≥ 0 and at most a week: 1e308 overflowed the end-time line
+        from radar_odom.budgets import check_budget_minutes
+        from radar_odom.errors import ConfigError
+
+        try:
+            check_budget_minutes(args.minutes)
+        except ConfigError as exc:
+            raise DataSpecError(str(exc)) from None
     if args.resume:  # a missing or damaged state is said now, not after the drives are simulated (minutes)
         read_resume_state(args.output)
     d = init_distributed()

@@ -90,7 +90,7 @@ def register(subparsers) -> None:
         default=DEFAULT_MINUTES,
         help="wall-clock budget of this invocation, counted from the command's start (simulating drives "
         "included); the end time is printed at the start; at the budget the run stops mid-epoch, validates "
-        "and saves, and the same command with --resume continues it; 0: no budget, --epochs alone "
+        "and saves, and the same command with --resume continues it; 0: no budget, --epochs alone; at most a week "
         "(default: %(default)s)",
     )
     g.add_argument(
