@@ -61,13 +61,13 @@ def test_both_sweeps_of_every_match_are_drawn_with_one_twist(sim_drive):
     scans, _ = sim_drive
     odo = RadarOdometer(pretrained("cart-0.4"), deskew=True, motion_prior=False)
     drawn = []  # (sweep source, twist) of every graph input the odometer draws
-    real = odo._sweep_input
+    real = odo._matcher.draw
 
     def spy(scan, motion=None):
         drawn.append((scan.source, None if motion is None else motion.twist))
         return real(scan, motion)
 
-    odo._sweep_input = spy
+    odo._matcher.draw = spy
     latest = {}  # sweep → the twist of its latest drawing
     for k, s in enumerate(scans):
         before = len(drawn)
@@ -90,16 +90,16 @@ def test_the_reference_is_redrawn_when_the_velocity_changes_much(sim_drive):
     odo = RadarOdometer(pretrained("cart-0.4"), deskew=True, motion_prior=False)
     for s in scans[:3]:
         odo.step(s)
-    redraws, ref_twist = odo.reference_redraws, odo._deskew_stage.ref_twist
+    redraws, ref_twist = odo.reference_redraws, odo._state.ref.twist
     threshold_mps = REDRAW_FRACTION_PX * odo.profile.resolution_m / 0.25  # one 0.25 s sweep
     near = (ref_twist[0] + 0.5 * threshold_mps, ref_twist[1], ref_twist[2])
-    odo._deskew_stage.stream_twist = lambda scan: near  # the stream's velocity moved a little: keep the reference
+    odo._deskew.stream_twist = lambda scan: near  # the stream's velocity moved a little: keep the reference
     odo.step(scans[3])
-    assert odo.reference_redraws == redraws and odo._deskew_stage.ref_twist == ref_twist
+    assert odo.reference_redraws == redraws and odo._state.ref.twist == ref_twist
     far = (ref_twist[0] + 2.0 * threshold_mps, ref_twist[1], ref_twist[2])
-    odo._deskew_stage.stream_twist = lambda scan: far  # moved much: the reference is drawn again with it
+    odo._deskew.stream_twist = lambda scan: far  # moved much: the reference is drawn again with it
     odo.step(scans[4])
-    assert odo.reference_redraws == redraws + 1 and odo._deskew_stage.ref_twist == far
+    assert odo.reference_redraws == redraws + 1 and odo._state.ref.twist == far
 
 
 def test_pair_and_stream_forms_deskew_alike(tiny_model, tiny_pair_model):
@@ -121,13 +121,13 @@ def test_centred_yaw_and_deskew_redraw_the_reference_with_its_turn(sim_drive):
     odo = RadarOdometer(pretrained("cart-0.4"), deskew=True, centre_yaw=True, motion_prior=False)
     for s in scans[:4]:
         odo.step(s)
-    turn, ref_source, ref_twist = odo._state.ref.turn, odo._deskew_stage.ref_scan.source, odo._deskew_stage.ref_twist
+    turn, ref_source, ref_twist = odo._state.ref.turn, odo._state.ref.scan.source, odo._state.ref.twist
     assert turn != 0.0  # the reference was drawn turned by the predicted yaw
     drawn = []
-    real = odo._sweep_input
-    odo._sweep_input = lambda scan, motion=None: drawn.append((scan.source, motion)) or real(scan, motion)
+    real = odo._matcher.draw
+    odo._matcher.draw = lambda scan, motion=None: drawn.append((scan.source, motion)) or real(scan, motion)
     far = (ref_twist[0] + 2.0, ref_twist[1], ref_twist[2])  # moved much: the reference is redrawn
-    odo._deskew_stage.stream_twist = lambda scan: far
+    odo._deskew.stream_twist = lambda scan: far
     est = odo.step(scans[4])
     redrawn = [m for src, m in drawn if src == ref_source]
     assert len(redrawn) == 1 and redrawn[0].twist == far and redrawn[0].frame_pose == (0.0, 0.0, turn)
@@ -154,7 +154,7 @@ def test_without_deskew_nothing_is_kept_or_redrawn(sim_drive):
     scans, _ = sim_drive
     odo = RadarOdometer(pretrained("cart-0.4"), deskew=False)
     steps(odo, scans[:3])
-    assert odo.reference_redraws == 0 and odo._deskew_stage.ref_scan is None and odo._deskew_stage.ref_twist is None
+    assert odo.reference_redraws == 0 and odo._state.ref.twist is None
 
 
 def test_twists_differ_at_the_threshold_and_symmetrically(sim_drive):

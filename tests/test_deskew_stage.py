@@ -8,6 +8,7 @@ import pytest
 
 from radar_odom.odometry.deskew_stage import DESKEW_STEPS, DeskewStage
 from radar_odom.odometry.match_stage import Match
+from radar_odom.odometry.stream_state import Reference
 from radar_odom.profiles import get_profile
 from radar_odom.scan import RadarScan
 
@@ -22,11 +23,17 @@ def sweep(t0_us=0, period_s=0.25, rows=400):
 def stage(enabled=True, redraw_ok=True, mount_yaw_rad=0.0):
     calls = []
 
-    def redraw(scan, twist):
-        calls.append((scan, twist))
-        return redraw_ok
+    class Drawer:  # stands in for MatchStage.draw_reference: the reference state, or None (not finite)
+        def draw_reference(self, scan, twist, turn):
+            calls.append((scan, twist))
+            return np.ones(1) if redraw_ok else None
 
-    return DeskewStage(enabled, PROFILE, mount_yaw_rad, redraw), calls
+    return DeskewStage(enabled, PROFILE, mount_yaw_rad, Drawer()), calls
+
+
+def reference(scan, twist):
+    """A stream's `Reference`: ``scan`` drawn with ``twist``."""
+    return Reference(np.zeros(1), 0, scan, 0.0, twist)
 
 
 def test_stream_twist_is_the_mean_of_the_last_steps_in_the_radars_frame():
@@ -46,56 +53,54 @@ def test_the_pair_keeps_the_references_twist_until_the_stream_moves_away():
     s, calls = stage()
     for _ in range(DESKEW_STEPS):
         s.observe((2.5, 0.0, 0.0), 0.25)
-    ref = sweep()
-    s.keep_reference(ref, (10.0, 0.0, 0.0))
-    assert s.pair_twist(sweep(250_000)) == (10.0, 0.0, 0.0) and not calls  # the same velocity: nothing redrawn
+    ref = reference(sweep(), (10.0, 0.0, 0.0))
+    assert s.pair_twist(sweep(250_000), ref) == (10.0, 0.0, 0.0) and not calls  # the same velocity: nothing redrawn
     for _ in range(DESKEW_STEPS):
         s.observe((5.0, 0.0, 0.0), 0.25)  # now 20 m/s: a pixel and more apart over a sweep
-    assert s.pair_twist(sweep(250_000)) == (20.0, 0.0, 0.0)
-    assert calls == [(ref, (20.0, 0.0, 0.0))] and s.redraws == 1 and s.ref_twist == (20.0, 0.0, 0.0)
+    assert s.pair_twist(sweep(250_000), ref) == (20.0, 0.0, 0.0)
+    assert calls == [(ref.scan, (20.0, 0.0, 0.0))] and s.redraws == 1 and ref.twist == (20.0, 0.0, 0.0)
+    assert ref.feed is not None and ref.feed[0] == 1.0  # the redrawn state is the reference's now
 
 
 def test_a_failed_redraw_keeps_the_references_twist_and_still_counts():
     s, calls = stage(redraw_ok=False)
     for _ in range(DESKEW_STEPS):
         s.observe((5.0, 0.0, 0.0), 0.25)
-    s.keep_reference(sweep(), (10.0, 0.0, 0.0))
-    assert s.pair_twist(sweep(250_000)) == (10.0, 0.0, 0.0)
-    assert len(calls) == 1 and s.redraws == 1 and s.ref_twist == (10.0, 0.0, 0.0)
+    ref = reference(sweep(), (10.0, 0.0, 0.0))
+    assert s.pair_twist(sweep(250_000), ref) == (10.0, 0.0, 0.0)
+    assert len(calls) == 1 and s.redraws == 1 and ref.twist == (10.0, 0.0, 0.0) and ref.feed[0] == 0.0
 
 
 def test_the_first_match_is_drawn_again_with_the_velocity_it_measured():
     s, calls = stage()
-    s.keep_reference(sweep(), None)
+    ref = reference(sweep(), None)
     rematched = []
     out = Match(np.array([2.5, 0.0, 0.0]), np.eye(3), None, 0.0, 1)
     again = (np.array([2.6, 0.0, 0.0]), np.eye(3))
-    got, twist = s.first_match(sweep(250_000), 0.25, out, None, lambda tw: rematched.append(tw) or again)
+    got, twist = s.first_match(sweep(250_000), ref, 0.25, out, None, lambda tw: rematched.append(tw) or again)
     assert got is again and twist == pytest.approx((10.0, 0.0, 0.0))
     assert rematched == [twist] and calls[0][1] == twist and s.redraws == 1
     # a rematch that is not finite: no match at all (the reference stays redrawn)
     s2, _ = stage()
-    s2.keep_reference(sweep(), None)
-    assert s2.first_match(sweep(250_000), 0.25, out, None, lambda tw: None) == (None, None)
+    assert s2.first_match(sweep(250_000), reference(sweep(), None), 0.25, out, None, lambda tw: None) == (None, None)
 
 
 @pytest.mark.parametrize("case", ["off", "has_twist", "has_motion", "no_match", "still"])
 def test_other_steps_pass_through_the_first_match_untouched(case):
     s, calls = stage(enabled=case != "off")
-    s.keep_reference(sweep(), None)
+    ref = reference(sweep(), None)
     out = Match(np.array([0.0 if case == "still" else 2.5, 0.0, 0.0]), np.eye(3), None, 0.0, 1)
     twist = (10.0, 0.0, 0.0) if case == "has_twist" else None
     if case == "has_motion":
         s.observe((2.5, 0.0, 0.0), 0.25)
     if case == "no_match":
         out = None
-    got = s.first_match(sweep(250_000), 0.25, out, twist, lambda tw: pytest.fail("no second match"))
+    got = s.first_match(sweep(250_000), ref, 0.25, out, twist, lambda tw: pytest.fail("no second match"))
     assert got[0] is out and got[1] == twist and not calls and s.redraws == 0
 
 
-def test_off_keeps_nothing():
+def test_off_draws_nothing():
     s, calls = stage(enabled=False)
     s.observe((5.0, 0.0, 0.0), 0.25)
-    s.keep_reference(sweep(), (10.0, 0.0, 0.0))
-    assert s.ref_scan is None and s.ref_twist is None
-    assert s.pair_twist(sweep(250_000)) is None and s.stream_twist(sweep()) is None and not calls
+    ref = reference(sweep(), (10.0, 0.0, 0.0))
+    assert s.pair_twist(sweep(250_000), ref) is None and s.stream_twist(sweep()) is None and not calls

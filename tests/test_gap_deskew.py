@@ -17,6 +17,7 @@ from radar_odom.odometry import gaps as G
 from radar_odom.odometry.config import OdometerConfig
 from radar_odom.odometry.match_stage import CROSSING_DESKEW_ROUNDS, NO_AGREEMENT, MatchStage
 from radar_odom.odometry.motion_prior import MotionPriorConfig
+from radar_odom.odometry.stream_state import Reference
 from radar_odom.profiles import get_profile
 from radar_odom.se2 import se2, to_xyyaw
 
@@ -37,29 +38,34 @@ def measuring(pose):
     return run
 
 
+RECORDED = np.zeros(4)  # the graph's state of the reference as recorded (the stream's `Reference`)
+
+
 def stage(recorded, deskewed, calls):
-    """A `MatchStage` on stand-ins: ``recorded`` / ``deskewed`` map the drawn sweep (its `SweepMotion`) to
-    the graph's (residual, cov, state) against the reference as recorded / redrawn; ``calls`` collects
-    what was drawn and against which reference."""
-    def run_pair(drawn, keep_reference=False):
-        calls.append(("recorded", drawn))
-        return recorded(drawn)
+    """A `MatchStage` on a stand-in graph: ``recorded`` / ``deskewed`` map the drawn sweep (its `SweepMotion`:
+    drawing is the identity) to the graph's (residual, cov, state) against the reference as recorded / redrawn;
+    ``calls`` collects what was drawn and against which reference."""
+    class Graph:
+        def match(self, drawn, reference, keep_reference=False):
+            if reference is RECORDED:
+                calls.append(("recorded", drawn))
+                return recorded(drawn)
+            calls.append(("deskewed", drawn, reference))
+            return deskewed(drawn)
 
-    def run_against(drawn, reference):
-        calls.append(("deskewed", drawn, reference))
-        return deskewed(drawn)
+        def first(self, drawn):
+            calls.append(("first", drawn))
+            return np.ones(4)
 
-    def run_first(drawn):
-        calls.append(("first", drawn))
-        return np.ones(4)
-
-    return MatchStage(PROFILE, 0.0, True, False, OdometerConfig(), SimpleNamespace(config=MotionPriorConfig()),
-                      run_pair, run_first, lambda scan, motion=None: motion, run_against=run_against)
+    info = SimpleNamespace(profile=PROFILE, mount_yaw_rad=0.0, form="stream")
+    st = MatchStage(Graph(), info, OdometerConfig(), SimpleNamespace(config=MotionPriorConfig()))
+    st.draw = lambda scan, motion=None: motion
+    return st
 
 
 def cross(st, ref_scan=REF_SCAN):
     """The crossing's reading (pose, cov), or NO_AGREEMENT, of a stand-in stage over the 6-sweep gap."""
-    return st._crossing(SCAN, None, PRED, 0.0, ref_scan, INTERVAL_S, lambda reading: True)
+    return st._crossing(SCAN, None, Reference(RECORDED, 0, ref_scan, 0.0), PRED, INTERVAL_S, lambda reading: True)
 
 
 def test_an_agreed_crossing_is_refined_by_the_de_skewed_match():

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from ..model_file import STATE_FORMS
+from ..odometry.sweep_input import graph_input
 from .reference import FFTReference, make_reference, state_to_image, state_to_spectrum
 from .stats import _summarise_ops, latency_summary, masker_time, operator_runs, peak_rss_mb
 from .sweeps import decode_png, parse_sweep
@@ -73,7 +74,7 @@ def profile_model(model_path, pngs: list[bytes], *, steps: int = 200, warmup: in
         t1 = time.perf_counter()
         scan = parse_sweep(img)
         t2 = time.perf_counter()
-        x = odo._sweep_input(scan)  # the odometer's own conversion (Cartesian or reduced polar)
+        x = graph_input(scan, odo.info)  # the odometer's own conversion (Cartesian or reduced polar)
         t3 = time.perf_counter()
         if streaming:
             feeds = _stream_feeds(info, x, state)
@@ -117,7 +118,7 @@ def _stream_states(model, info, pngs, odo, count):
     """(previous state, current state, pose) for ``count`` consecutive steps of a fresh stream."""
     state = np.zeros(info.state_shape, dtype=np.float32)
     for i in range(count + 1):
-        out = model.run(_stream_feeds(info, odo._sweep_input(parse_sweep(decode_png(pngs[i % len(pngs)]))), state))
+        out = model.run(_stream_feeds(info, graph_input(parse_sweep(decode_png(pngs[i % len(pngs)])), odo.info), state))
         if i:
             yield state, out["state"], out["pose"][0]
         state = out["state"]
@@ -167,7 +168,7 @@ def _operators(model_path, threads, pngs, odo, info, steps, trace_dir, name) -> 
             for _ in _stream_states(traced, info, pngs, odo, steps):
                 pass
         else:
-            x = odo._sweep_input(parse_sweep(decode_png(pngs[0])))
+            x = graph_input(parse_sweep(decode_png(pngs[0])), odo.info)
             for _ in range(steps):
                 traced.run({n: x for n in info.inputs})
         trace = traced.end_profiling()

@@ -8,21 +8,20 @@ estimates, constant over the sweep, from each row's timestamp: Oxford and Boreas
 are spread uniformly over the period; `radar_odom.polar.moving_sample_maps`). Poses then refer to the
 first-azimuth instants of the two sweeps, so both sweeps of a match are drawn with the same twist.
 
-`DeskewStage` holds what de-skew remembers of a stream (the reference sweep as recorded, the twist it
-was drawn with, the last `DESKEW_STEPS` estimates its velocity comes from, the redraws spent) and makes
-the twist decisions (docs/deskew.md):
+`DeskewStage` holds what de-skew remembers of a stream beyond its reference (the last `DESKEW_STEPS`
+estimates its velocity comes from, the redraws spent) and makes the twist decisions (docs/deskew.md); the
+reference sweep and the twist it was drawn with are the stream's `Reference`, held once:
 
 - the stream's twist (`DeskewStage.stream_twist`): the mean velocity of the last estimates, in the
   radar's frame (the model's mount yaw), or None where it would move no pixel;
 - the pair's twist (`DeskewStage.pair_twist`): both sweeps of a match are drawn with one twist, the
   reference's, until the stream's has moved away from it (`sweep_input.twists_differ`): then the
-  reference is redrawn with the stream's (one graph call);
+  reference is redrawn with the stream's (one graph call, `MatchStage.draw_reference`);
 - a stream's first match (`DeskewStage.first_match`): made as recorded, its pose over its interval
-  gives the velocity, and the pair is drawn with it and matched again.
+  gives the velocity, and the pair is drawn with it and matched again (``rematch``).
 
-The graph calls stay the odometer's: the stage takes them as callables (``redraw_reference`` here,
-``rematch`` for `first_match`). Twists are (vx m/s, vy m/s, yaw rate rad/s) in the radar's frame,
-as `sweep_input.deskew_twist` gives them; velocities and poses come in the vehicle's frame.
+Twists are (vx m/s, vy m/s, yaw rate rad/s) in the radar's frame, as `sweep_input.deskew_twist` gives them;
+velocities and poses come in the vehicle's frame.
 """
 from __future__ import annotations
 
@@ -42,28 +41,24 @@ class DeskewStage:
     """De-skew's state for one stream and its twist decisions.
 
     Args:
-        enabled: de-skew on (the odometer's ``deskew``, already False for a model whose sweeps cannot
-            be drawn moved); off, every twist is None and nothing is kept or redrawn.
+        enabled: de-skew on (already False for a model whose sweeps cannot be drawn moved); off, every
+            twist is None and nothing is redrawn.
         profile: the model's `GridProfile` (which displacement moves a pixel).
         mount_yaw_rad: the model's mount yaw (``ModelInfo.mount_yaw_rad``): vehicle frame → radar's.
-        redraw_reference: ``(reference scan, twist) -> bool``: the graph call that draws the reference
-            sweep again with the twist (in the turn it was drawn with) and makes it the graph's reference;
-            False (the reference kept) where the graph's output is not finite.
+        drawer: what draws a reference again with a twist (`MatchStage`: ``draw_reference(scan, twist,
+            turn)`` → the reference state, or None where the graph's output is not finite).
     """
 
-    def __init__(self, enabled: bool, profile, mount_yaw_rad: float,
-                 redraw_reference: Callable[[RadarScan, tuple], bool]):
+    def __init__(self, enabled: bool, profile, mount_yaw_rad: float, drawer):
         self.enabled = bool(enabled)
         self.profile = profile
         self.mount_yaw_rad = mount_yaw_rad
-        self._redraw_reference = redraw_reference
+        self._drawer = drawer
         self.recent_motion: deque = deque(maxlen=DESKEW_STEPS)  # (relative pose, interval s)
         self.reset()
 
     def reset(self) -> None:
         """Forget the stream (a new one starts)."""
-        self.ref_scan: RadarScan | None = None  # the reference as recorded, redrawn when de-skew needs it
-        self.ref_twist: tuple | None = None  # the de-skew twist the reference was drawn with
         self.redraws = 0  # graph calls spent redrawing a reference for de-skew (this stream)
         self.recent_motion.clear()
 
@@ -93,19 +88,21 @@ class DeskewStage:
         radar = turn_frame(np.asarray(velocity, dtype=np.float64), None, -self.mount_yaw_rad)[0]
         return deskew_twist(radar, scan, self.profile)
 
-    def pair_twist(self, scan: RadarScan):
-        """The twist the new sweep is drawn with, the one the reference was drawn with: the
-        stream's (`stream_twist`) once that has moved away from the reference's (the reference
+    def pair_twist(self, scan: RadarScan, ref):
+        """The twist the new sweep is drawn with, the one the reference ``ref`` (a `Reference`) was drawn
+        with: the stream's (`stream_twist`) once that has moved away from the reference's (the reference
         redrawn with it, one graph call), else the reference's; None with de-skew off."""
+        if not self.enabled:
+            return None
         want = self.stream_twist(scan)
-        if not self.enabled or self.ref_scan is None or not twists_differ(want, self.ref_twist, scan, self.profile):
-            return self.ref_twist if self.enabled else None
-        return want if self._redraw(want) else self.ref_twist
+        if ref.scan is None or not twists_differ(want, ref.twist, scan, self.profile):
+            return ref.twist
+        return want if self.redraw(ref, want) else ref.twist
 
-    def first_match(self, scan: RadarScan, interval_s: float, out, twist, rematch: Callable):
+    def first_match(self, scan: RadarScan, ref, interval_s: float, out, twist, rematch: Callable):
         """(match, twist) after the predict and match stages. A stream's first match with de-skew on
         (``twist`` None, no estimate yet): ``out``, made as recorded, gives the velocity over its
-        ``interval_s``; the reference and the new sweep are drawn with it and matched again
+        ``interval_s``; the reference ``ref`` and the new sweep are drawn with it and matched again
         (``rematch(twist) -> match or None``, the odometer's match of the new sweep drawn with
         ``twist``; two graph calls in all). ``out`` and None where that velocity moves no pixel;
         (None, None) where the second match is not finite (the reference then stays redrawn).
@@ -113,21 +110,18 @@ class DeskewStage:
         if out is None or twist is not None or not self.enabled or self.recent_motion:
             return out, twist
         twist = self.radar_twist(np.asarray(out.pose) / interval_s, scan)
-        if twist is None or not self._redraw(twist):
+        if twist is None or not self.redraw(ref, twist):
             return out, None
         again = rematch(twist)
         return (again, twist) if again is not None else (None, None)
 
-    def keep_reference(self, scan: RadarScan, twist) -> None:
-        """Remember the new reference sweep as recorded and the twist it was drawn with (de-skew
-        redraws it when the stream's velocity moves away from that twist)."""
-        self.ref_scan, self.ref_twist = (scan, twist) if self.enabled else (None, None)
-
-    def _redraw(self, twist) -> bool:
-        """Draw the reference sweep again with ``twist`` and make it the reference (one graph call);
-        False (the reference and its twist kept) where the graph's output is not finite."""
-        drawn = self._redraw_reference(self.ref_scan, twist)
+    def redraw(self, ref, twist) -> bool:
+        """Draw the reference sweep again with ``twist`` (in the turn it was drawn with) and make it the
+        reference (one graph call, counted); False (the reference and its twist kept) where the graph's
+        output is not finite."""
+        feed = self._drawer.draw_reference(ref.scan, twist, ref.turn)
         self.redraws += 1
-        if drawn:
-            self.ref_twist = twist
-        return drawn
+        if feed is None:
+            return False
+        ref.feed, ref.twist = feed, twist
+        return True

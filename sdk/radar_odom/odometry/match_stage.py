@@ -28,13 +28,11 @@ The plain mode (``match_decides`` False) matches with the window centred on the 
 say sweeps were dropped, else where the graph puts it, and takes that match as it is.
 
 `MatchStage.readings_around` (the new sweep matched with the window centred around a pose) is the gap
-crossing's search. The graph calls and the stream's state stay the odometer's: the stage takes the graph
-calls as callables (``run_pair``, ``run_first``, ``sweep_input``); it reads the odometer's `MotionPrior`,
-never changes it.
+crossing's search. The stage calls the model's `GraphStep` itself; the stream's state (the `Reference`)
+comes with each call, and the odometer's `MotionPrior` is read, never changed.
 """
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -43,7 +41,7 @@ from ..se2 import invert, se2, to_xyyaw, turn_frame
 from . import gaps
 from .centring import MAX_TURN_RAD, next_turn, uncentre
 from .motion_prior import GATED, PRIOR_DOMINATED, innovation, mahalanobis_d2
-from .sweep_input import SweepMotion, deskew_twist
+from .sweep_input import SweepMotion, deskew_twist, graph_input
 
 NO_AGREEMENT = object()  # `MatchStage._agreed`: the readings agreed on nothing the gap's prior allows
 CROSSING_DESKEW_ROUNDS = 2  # de-skewed re-matches of an agreed crossing, each with the velocity of the one before
@@ -74,60 +72,58 @@ class MatchStage:
     """How a new sweep is matched against the reference (see the module docstring).
 
     Args:
-        profile: the model's `GridProfile` (the window, the readings' agreement tolerances).
-        mount_yaw_rad: the model's mount yaw (``ModelInfo.mount_yaw_rad``): radar frame → vehicle's.
-        movable: the model's sweeps can be drawn moved (not polar, not sweep form); else no centring or crossing.
-        centre_yaw: draw the new sweep turned by the predicted yaw (already False where not ``movable``).
-        config: the odometer's `OdometerConfig` (``time.match_decides``, ``gaps``).
+        graph: the model's `GraphStep` (``first``: a sweep made a reference; ``match``: a sweep against one).
+        info: the model's `ModelInfo` (its profile: the window, the agreement tolerances; its mount yaw: the
+            radar's frame turned into the vehicle's; its form and input: whether sweeps can be drawn moved).
+        config: the odometer's `OdometerConfig` (``time``, ``gaps``, ``deskew.centre_yaw``).
         prior: the odometer's `MotionPrior` (its velocity predicts the motion; read only).
-        run_pair: ``(graph input, keep_reference=False) -> (pose, cov, new reference) or None``.
-        run_first: ``graph input -> reference state`` (`GraphStep.first`).
-        sweep_input: ``(scan, SweepMotion) -> graph input``: the sweep drawn moved (`sweep_input.graph_input`).
-        run_against: ``(graph input, reference state) -> (pose, cov, new reference) or None``: the graph's
-            match against another reference than the current one (the de-skewed crossing).
+
+    Each call takes the stream's `Reference` (its state, the sweep as recorded, the turn and twist it was
+    drawn with); the stage keeps nothing of a stream.
     """
 
-    def __init__(self, profile, mount_yaw_rad: float, movable: bool, centre_yaw: bool, config, prior,
-                 run_pair: Callable, run_first: Callable, sweep_input: Callable,
-                 run_against: Callable | None = None):
-        self.profile = profile
-        self.mount_yaw_rad = mount_yaw_rad
-        self.movable = bool(movable)
-        self.centre_yaw = bool(centre_yaw)
+    def __init__(self, graph, info, config, prior):
+        self.graph = graph
+        self.info = info
+        self.profile = profile = info.profile
+        self.mount_yaw_rad = info.mount_yaw_rad
+        # a polar model's graph reads the sweep as recorded, a sweep-form graph draws it as recorded: neither
+        # can be drawn moved (no centring, crossing or de-skew)
+        self.movable = profile.input_kind != "polar" and info.form != "sweep"
+        self.centre_yaw = config.deskew.centre_yaw and self.movable
         self.period_s = config.time.prior_period_s
         self.match_decides = config.time.match_decides
         self.cross = config.gaps.cross and self.movable
         self.max_yaw_accel = config.gaps.max_yaw_accel_rps2
         self._gate_d2 = (config.prior or prior.config).gate_d2
         self._prior = prior
-        self._run_pair = run_pair
-        self._run_first = run_first
-        self._sweep_input = sweep_input
-        self._run_against = run_against
-        self.deskew_gaps = config.gaps.deskew and run_against is not None and self.cross
+        self.deskew_gaps = config.gaps.deskew and self.cross
         self._window_m = profile.translation_cells * profile.resolution_m
         self._sharp_m = gaps.agreement(profile)[2]
 
-    def match(self, scan, x: np.ndarray, twist, sweeps: int, stamp_periods: int, lead_s: float, ref_turn: float,
-              ref_scan=None, recent_yaw_rates=()) -> Match | None:
-        """The `Match` of the new sweep (graph input ``x``, drawn with ``twist``) against the reference
-        ``sweeps`` sweeps back (drawn turned by ``ref_turn``; ``ref_scan``: that sweep as recorded), the stamps
-        putting ``stamp_periods`` periods between them; ``lead_s``: seconds from the end of the velocity's
-        interval to the reference; ``recent_yaw_rates``: the yaw rates (rad/s) of the last second's steps.
-        None where the graph's output is not finite."""
+    def draw(self, scan, motion: SweepMotion | None = None):
+        """The graph input of ``scan`` drawn with ``motion`` (`sweep_input.graph_input`)."""
+        return graph_input(scan, self.info, motion)
+
+    def match(self, scan, x: np.ndarray, twist, ref, sweeps: int, stamp_periods: int, lead_s: float,
+              recent_yaw_rates=()) -> Match | None:
+        """The `Match` of the new sweep (graph input ``x``, drawn with ``twist``) against the reference ``ref``
+        (a `Reference`) ``sweeps`` sweeps back, the stamps putting ``stamp_periods`` periods between them;
+        ``lead_s``: seconds from the end of the velocity's interval to the reference; ``recent_yaw_rates``:
+        the yaw rates (rad/s) of the last second's steps. None where the graph's output is not finite."""
         k_stamp = max(int(sweeps), int(stamp_periods))
         by_stamps = self.movable and self._prior.ready and k_stamp > sweeps
         if by_stamps and not self.match_decides:  # plain: the window where the stamps' prediction puts it
             pred = gaps.crossing_prior(*self.prior_step(), k_stamp * self.period_s, lead_s)
-            centred = self.centred(scan, twist, pred[0], ref_turn)
-            new_ref = None if centred is None else self._run_first(x)
+            centred = self.centred(scan, twist, pred[0], ref)
+            new_ref = None if centred is None else self.graph.first(x)
             if centred is not None and np.all(np.isfinite(new_ref)):
                 return Match(centred[0], centred[1], new_ref, 0.0, k_stamp, frozenset({gaps.GAP}))
-        plain = self.match_plain(scan, x, twist, sweeps * self.period_s, lead_s, ref_turn)
+        plain = self.match_plain(scan, x, twist, ref, sweeps * self.period_s, lead_s)
         if plain is None:
             return None
         pose, cov, new_ref, turn = plain
-        residual = turn_frame(pose, None, -self.mount_yaw_rad)[0] - (0.0, 0.0, turn - ref_turn)
+        residual = turn_frame(pose, None, -self.mount_yaw_rad)[0] - (0.0, 0.0, turn - ref.turn)
         readable = self.readable(residual, cov)
         if not (self.match_decides and self._prior.ready):
             return Match(pose, cov, new_ref, turn, k_stamp, frozenset({gaps.GAP} if k_stamp > sweeps else ()))
@@ -136,7 +132,7 @@ class MatchStage:
         if not by_stamps:
             return Match(pose, cov, new_ref, turn, k_stamp)
         plain = (pose, cov) if readable else None
-        return self.cross_gap(scan, twist, k_stamp, lead_s, ref_turn, ref_scan, new_ref, recent_yaw_rates, plain)
+        return self.cross_gap(scan, twist, ref, k_stamp, lead_s, new_ref, recent_yaw_rates, plain)
 
     def readable(self, residual, cov, fraction: float = gaps.EDGE_FRACTION) -> bool:
         """Whether a match's residual (radar frame, in the window it was drawn in) lies within ``fraction``
@@ -153,20 +149,20 @@ class MatchStage:
                 else gaps.crossing_prior(*self.prior_step(), interval_s, lead_s))
         return mahalanobis_d2(innovation(pose, pred[0]), np.asarray(cov) + pred[1]) <= float(max_d2)
 
-    def centred(self, scan, twist, predicted, ref_turn: float):
+    def centred(self, scan, twist, predicted, ref):
         """(pose, cov) of one match with the window centred on ``predicted`` (vehicle frame), or None where
         it is not finite or not readable."""
-        a_ref = ref_turn
+        a_ref = ref.turn
         centre = to_xyyaw(se2(0.0, 0.0, -a_ref) @ se2(*turn_frame(predicted, None, -self.mount_yaw_rad)[0]))
-        drawn = self._sweep_input(scan, SweepMotion(twist=twist, frame_pose=tuple(to_xyyaw(invert(se2(*centre))))))
-        out = self._run_pair(drawn, keep_reference=True)
+        drawn = self.draw(scan, SweepMotion(twist=twist, frame_pose=tuple(to_xyyaw(invert(se2(*centre))))))
+        out = self.graph.match(drawn, ref.feed, True)
         if out is None or not self.readable(out[0], out[1]):
             return None
         moved = gaps.compose_residual(out[0], out[1], centre)
         return turn_frame(*uncentre(*moved, a_ref, 0.0), self.mount_yaw_rad)
 
-    def cross_gap(self, scan, twist, periods: int, lead_s: float, ref_turn: float, ref_scan, new_ref,
-                  recent_yaw_rates=(), plain=None) -> Match:
+    def cross_gap(self, scan, twist, ref, periods: int, lead_s: float, new_ref, recent_yaw_rates=(),
+                  plain=None) -> Match:
         """The `Match` of a step the stamps put ``periods`` periods after the reference and the plain match did
         not read as consecutive (steps 1-3 of the module docstring); ``new_ref``: the new sweep in its own frame
         (the plain match's); ``plain``: (pose, cov) of the plain match where it was readable, else None.
@@ -184,57 +180,57 @@ class MatchStage:
                     and not gaps.off_the_arc(*reading)
                     and gaps.drivable(*reading, interval_s, recent_yaw_rates, self.max_yaw_accel))
 
-        centred = self.centred(scan, twist, pred[0], ref_turn)
+        centred = self.centred(scan, twist, pred[0], ref)
         tol_m, tol_rad, _ = gaps.agreement(self.profile)
         if plausible(centred) and plain is not None and gaps.poses_agree(centred[0], plain[0], tol_m, tol_rad):
             return Match(centred[0], centred[1], new_ref, 0.0, periods, frozenset({gaps.GAP}))
         uncertain = frozenset({gaps.GAP, UNCERTAIN})
         if plausible(centred):  # found again where it was found: a peak, not the window's centre (two calls)
-            again = self.centred(scan, twist, centred[0], ref_turn)
+            again = self.centred(scan, twist, centred[0], ref)
             if plausible(again) and gaps.poses_agree(again[0], centred[0], tol_m, tol_rad):
-                pose = self.deskew_crossing(scan, ref_scan, again[0], interval_s, ref_turn) if (
-                    self.deskew_gaps and ref_scan is not None) else None
+                pose = self.deskew_crossing(scan, ref, again[0], interval_s) if (
+                    self.deskew_gaps and ref.scan is not None) else None
                 pose = again[0] if pose is None or not plausible((pose, again[1])) else pose
                 return Match(pose, again[1], new_ref, 0.0, periods, uncertain, pred[1])
-        agreed = self._crossing(scan, twist, pred, ref_turn, ref_scan, interval_s, plausible) if self.cross else None
+        agreed = self._crossing(scan, twist, ref, pred, interval_s, plausible) if self.cross else None
         for reading in (agreed, centred, plain):
             if reading is not None and reading is not NO_AGREEMENT and plausible(reading):
                 return Match(reading[0], reading[1], new_ref, 0.0, periods, uncertain, pred[1])
         # nothing read agrees with the gap's prior and a car's motion: the prediction
         return Match(pred[0], pred[1], new_ref, 0.0, periods, uncertain | {GATED, PRIOR_DOMINATED}, pred[1])
 
-    def _crossing(self, scan, twist, pred, ref_turn: float, ref_scan, interval_s: float, plausible):
+    def _crossing(self, scan, twist, ref, pred, interval_s: float, plausible):
         """(pose, cov) the readings from several window centres agree on (de-skewed where ``deskew_gaps``),
         `NO_AGREEMENT`, or None where no match was finite."""
-        deskew = self.deskew_gaps and ref_scan is not None
+        deskew = self.deskew_gaps and ref.scan is not None
         drawn_with, reference = twist, None
         if deskew:
             # the readings drawn de-skewed by the prediction's velocity (the reference redrawn with it)
             radar = turn_frame(np.asarray(pred[0], dtype=np.float64), None, -self.mount_yaw_rad)[0]
             predicted = deskew_twist(gaps.crossing_velocity(radar, interval_s), scan, self.profile)
-            reference = None if predicted is None else self.draw_reference(ref_scan, predicted, ref_turn)
+            reference = None if predicted is None else self.draw_reference(ref.scan, predicted, ref.turn)
             drawn_with = twist if reference is None else predicted
-        agreed = self._agreed(self.readings_around(scan, drawn_with, pred[0], ref_turn, reference), pred, plausible)
+        agreed = self._agreed(self.readings_around(scan, drawn_with, pred[0], ref, reference), pred, plausible)
         if reference is not None and (agreed is None or agreed is NO_AGREEMENT):
             # the readings drawn de-skewed found nothing to agree on: the readings as recorded
-            agreed = self._agreed(self.readings_around(scan, twist, pred[0], ref_turn), pred, plausible)
+            agreed = self._agreed(self.readings_around(scan, twist, pred[0], ref), pred, plausible)
         if agreed is None or agreed is NO_AGREEMENT:
             return agreed
         if deskew:
-            pose = self.deskew_crossing(scan, ref_scan, agreed[0], interval_s, ref_turn)
+            pose = self.deskew_crossing(scan, ref, agreed[0], interval_s)
             if pose is not None and gaps.crossing_d2(pose, agreed[1], *pred) <= self._gate_d2:
                 return pose, agreed[1]
         return agreed[0], agreed[1]
 
-    def match_plain(self, scan, x: np.ndarray, twist, interval_s: float, lead_s: float, ref_turn: float):
+    def match_plain(self, scan, x: np.ndarray, twist, ref, interval_s: float, lead_s: float):
         """(pose, cov, new reference, its turn) of one match of the new sweep against the reference as the
         graph reads it (drawn turned by the predicted yaw with ``centre_yaw``), or None if non-finite."""
         if self.centre_yaw:
-            out = self.match_centred(scan, x, twist, interval_s, lead_s, ref_turn)
+            out = self.match_centred(scan, x, twist, ref, interval_s, lead_s)
             if out is None:
                 return None
         else:
-            out = self._run_pair(x)
+            out = self.graph.match(x, ref.feed)
             if out is None:
                 return None
             out = (*out, 0.0)  # without centring every reference is drawn at turn 0
@@ -258,7 +254,7 @@ class MatchStage:
             return NO_AGREEMENT
         return agreed
 
-    def deskew_crossing(self, scan, ref_scan, pose, interval_s: float, ref_turn: float):
+    def deskew_crossing(self, scan, ref, pose, interval_s: float):
         """The crossing ``pose`` (x m, y m, yaw rad; vehicle frame) matched again with both sweeps
         de-skewed by its own velocity, or None (nothing to de-skew, a match not finite or at the
         window's edge, or one that moved away from ``pose`` beyond the readings' agreement).
@@ -271,18 +267,18 @@ class MatchStage:
         interval_s``, constant over the gap), not the stream's: the steps before a gap in a bend read it
         short. `CROSSING_DESKEW_ROUNDS` rounds, each a reference redrawn and one match centred on the pose
         of the round before (two graph calls a round)."""
-        mount, a_ref = self.mount_yaw_rad, ref_turn
+        mount, a_ref = self.mount_yaw_rad, ref.turn
         tol_m, tol_rad, _ = gaps.agreement(self.profile)
         window_m = self.profile.translation_cells * self.profile.resolution_m
         start = radar = turn_frame(np.asarray(pose, dtype=np.float64), None, -mount)[0]  # the radar's frame
         for _ in range(CROSSING_DESKEW_ROUNDS):
             twist = deskew_twist(gaps.crossing_velocity(radar, interval_s), scan, self.profile)
-            reference = None if twist is None else self.draw_reference(ref_scan, twist, a_ref)
+            reference = None if twist is None else self.draw_reference(ref.scan, twist, a_ref)
             if reference is None:
                 return None
             centre = to_xyyaw(se2(0.0, 0.0, -a_ref) @ se2(*radar))  # in the reference's drawn frame
-            drawn = self._sweep_input(scan, SweepMotion(twist=twist, frame_pose=tuple(to_xyyaw(invert(se2(*centre))))))
-            out = self._run_against(drawn, reference)
+            drawn = self.draw(scan, SweepMotion(twist=twist, frame_pose=tuple(to_xyyaw(invert(se2(*centre))))))
+            out = self.graph.match(drawn, reference, True)
             if out is None or gaps.at_window_edge(out[0], window_m, self.profile.rotation_range_rad):
                 return None
             moved, _ = gaps.compose_residual(out[0], out[1], centre)
@@ -295,7 +291,7 @@ class MatchStage:
         """The reference state of ``ref_scan`` drawn with ``twist`` (and turned by ``ref_turn``), or None
         where the graph's output is not finite (one graph call). Also the de-skew stage's redraw."""
         turn = (0.0, 0.0, ref_turn) if ref_turn else None
-        reference = self._run_first(self._sweep_input(ref_scan, SweepMotion(twist=twist, frame_pose=turn)))
+        reference = self.graph.first(self.draw(ref_scan, SweepMotion(twist=twist, frame_pose=turn)))
         return reference if np.all(np.isfinite(reference)) else None
 
     def prior_step(self) -> tuple:
@@ -303,41 +299,38 @@ class MatchStage:
         p = self._prior
         return p.velocity * p.interval_s, p.velocity_covariance * p.interval_s ** 2, p.interval_s
 
-    def readings_around(self, scan, twist, pose, ref_turn: float, reference=None):
+    def readings_around(self, scan, twist, pose, ref, reference=None):
         """The new sweep's readings (pose, cov; vehicle frame) with the window centred around ``pose``
-        (`gaps.crossing_readings`), the reference (drawn turned by ``ref_turn``) kept; None where no
-        match was finite. ``reference``: another reference state to match against (drawn with the same
-        ``twist``), or None for the current one."""
-        a_ref, mount = ref_turn, self.mount_yaw_rad
+        (`gaps.crossing_readings`) against ``ref`` (a `Reference`, kept); None where no match was finite.
+        ``reference``: another reference state to match against (drawn with the same ``twist``), or None
+        for ``ref``'s."""
+        a_ref, mount = ref.turn, self.mount_yaw_rad
         predicted = turn_frame(pose, None, -mount)[0]  # in the radar's frame, then the reference's drawn one
         centre = to_xyyaw(se2(0.0, 0.0, -a_ref) @ se2(*predicted))
 
         def residual_at(c):
-            drawn = self._sweep_input(scan, SweepMotion(twist=twist, frame_pose=tuple(to_xyyaw(invert(se2(*c))))))
-            if reference is None:
-                out = self._run_pair(drawn, keep_reference=True)
-            else:
-                out = self._run_against(drawn, reference)
+            drawn = self.draw(scan, SweepMotion(twist=twist, frame_pose=tuple(to_xyyaw(invert(se2(*c))))))
+            out = self.graph.match(drawn, ref.feed if reference is None else reference, True)
             return None if out is None else out[:2]
 
         readings = gaps.crossing_readings(centre, residual_at, self.profile)
         return None if readings is None else [turn_frame(*uncentre(*m, a_ref, 0.0), mount) for m in readings]
 
-    def match_centred(self, scan, x: np.ndarray, twist, interval_s: float, lead_s: float, ref_turn: float):
+    def match_centred(self, scan, x: np.ndarray, twist, ref, interval_s: float, lead_s: float):
         """(pose in the radar's frame, cov, new reference, its turn) with the new sweep drawn turned
         by the predicted yaw, or None where the graph's output is not finite. A turn beyond
         `MAX_TURN_RAD` re-draws the new reference in its own frame (a second graph call)."""
         pred = self._prior.predict(interval_s, lead_s)
-        a_ref = ref_turn
+        a_ref = ref.turn
         a_new = next_turn(a_ref, None if pred is None else float(pred[0][2]))
-        drawn = x if a_new == 0.0 else self._sweep_input(scan, SweepMotion(twist=twist, frame_pose=(0.0, 0.0, a_new)))
-        out = self._run_pair(drawn)
+        drawn = x if a_new == 0.0 else self.draw(scan, SweepMotion(twist=twist, frame_pose=(0.0, 0.0, a_new)))
+        out = self.graph.match(drawn, ref.feed)
         if out is None:
             return None
         residual, residual_cov, new_ref = out
         pose, cov = uncentre(residual, residual_cov, a_ref, a_new)
         if abs(a_new) > MAX_TURN_RAD:
-            new_ref, a_new = self._run_first(x), 0.0
+            new_ref, a_new = self.graph.first(x), 0.0
             if not np.all(np.isfinite(new_ref)):
                 return None
         return pose, cov, new_ref, a_new
