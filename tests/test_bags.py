@@ -15,11 +15,11 @@ from rosbags.highlevel import AnyReader  # noqa: E402
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore  # noqa: E402
 
 from radar_odom.commands.cli import main  # noqa: E402
-from radar_odom.commands.run_sequence import read_estimates_csv, run_sequence  # noqa: E402
 from radar_odom.errors import ScanFormatError, SequenceError  # noqa: E402
 from radar_odom.io import load_scan, read_sequence  # noqa: E402
 from radar_odom.io.bag import open_bag, read_bag  # noqa: E402
 from radar_odom.ros.msgs import NAVTECH_BSCAN_MSGDEF, NAVTECH_BSCAN_MSGTYPE, UNOBSERVED_VARIANCE  # noqa: E402
+from radar_odom.runs.run_sequence import read_estimates_csv, run_sequence  # noqa: E402
 
 FRAMES = 5
 OXFORD_PAIR = "oxford-2019-01-10-14-36-48"

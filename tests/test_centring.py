@@ -147,8 +147,8 @@ def test_centring_reads_more_of_a_simulated_bend():
 def test_run_centre_yaw_flag_reaches_the_odometer(cli_model, tmp_path, capsys, monkeypatch):
     """`radar-odom run --centre-yaw` runs the odometer with it; without the flag the default (off) holds."""
     from radar_odom import RadarOdometer
-    from radar_odom.commands import run_sequence as rs
     from radar_odom.commands.cli import main
+    from radar_odom.runs import run_sequence as rs
     from radar_odom.sim import write_drive
 
     drive_dir = write_drive(tmp_path / "drive", seed=11, frames=4, progress=False)

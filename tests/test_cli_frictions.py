@@ -95,7 +95,7 @@ def test_run_without_rosbags_for_bag_out_leaves_no_folder(recording, tiny_model,
 
 def test_a_run_failing_inside_leaves_no_empty_folder_but_keeps_an_existing_one(recording, tiny_model, tmp_path,
                                                                                  capsys, monkeypatch):
-    import radar_odom.commands.run_sequence as run_mod
+    import radar_odom.runs.run_sequence as run_mod
     from radar_odom.errors import ModelMismatchError
 
     def mismatch(*args, **kwargs):
@@ -120,7 +120,7 @@ def test_demo_that_fails_leaves_no_empty_folder(tmp_path, capsys):
 
 
 def test_keep_stamps_reaches_the_reader(recording, tmp_path, monkeypatch):
-    import radar_odom.commands.run_sequence as run_mod
+    import radar_odom.runs.run_sequence as run_mod
 
     seen = {}
 

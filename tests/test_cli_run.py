@@ -3,10 +3,10 @@ import numpy as np
 import pytest
 
 from radar_odom.commands.cli import main
-from radar_odom.commands.run_sequence import read_estimates_csv
 from radar_odom.evaluation.report import evaluate, format_metrics
 from radar_odom.evaluation.trajectory import read_kitti, read_tum
 from radar_odom.io import read_sequence
+from radar_odom.runs.run_sequence import read_estimates_csv
 from radar_odom.se2 import chain_relative
 
 FRAMES = 6

@@ -122,8 +122,9 @@ ALLOWED_FOLDERS = {
     "evaluation": {"io"},    # the GNSS/INS reference through io.gnss_ins
     "latency": {"odometry", "io", "evaluation", "sim"},  # profiles on simulated sweeps
     "sim": {"io", "evaluation"},
-    "commands": {"odometry", "io", "ros", "evaluation", "latency", "sim", "fleet"},
-    "fleet": {"commands", "odometry", "evaluation"},  # run_sequence per recording; the report's counts and lengths
+    "runs": {"odometry", "io", "evaluation"},  # run_sequence: a recording read, run, written and evaluated
+    "commands": {"odometry", "io", "ros", "evaluation", "latency", "sim", "fleet", "runs"},
+    "fleet": {"runs", "odometry", "evaluation"},  # run_sequence per recording (never the CLI layer); the report
 }
 
 
@@ -162,11 +163,11 @@ def test_runtime_folders_import_only_what_the_architecture_allows():
 
 def test_the_layering_check_sees_a_wrong_import():
     assert _layering_violations({
-        "radar_odom.odometry.odometer": {"radar_odom.commands.run_sequence", "radar_odom.scan", "radar_odom.io"},
+        "radar_odom.odometry.odometer": {"radar_odom.commands.run", "radar_odom.scan", "radar_odom.io"},
         "radar_odom.scan": {"radar_odom.odometry.odometer"},
         "radar_odom.__main__": {"radar_odom.commands.cli"},
         "radar_odom.io.bag": {"radar_odom.ros.msgs"},
-    }) == ["radar_odom.odometry.odometer (odometry/) imports radar_odom.commands.run_sequence (commands/)",
+    }) == ["radar_odom.odometry.odometer (odometry/) imports radar_odom.commands.run (commands/)",
            "radar_odom.scan (shared vocabulary) imports radar_odom.odometry.odometer"]
 
 

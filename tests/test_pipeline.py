@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from radar_odom import RadarOdometer, ScanFormatError, SequenceError, StreamError
-from radar_odom.commands.run_sequence import read_estimates_csv, run_sequence
 from radar_odom.io import load_scan, read_sequence
 from radar_odom.odometry.pipeline import WORKER_NAME, iter_estimates, prefetched, throughput
+from radar_odom.runs.run_sequence import read_estimates_csv, run_sequence
 
 FRAMES = 8
 

@@ -24,10 +24,10 @@ import numpy as np
 import pytest
 
 from radar_odom.commands.cli import main
-from radar_odom.commands.run_sequence import read_estimates_csv
 from radar_odom.evaluation.report import evaluate
 from radar_odom.evaluation.trajectory import read_kitti, read_tum
 from radar_odom.odometry.gaps import GAP
+from radar_odom.runs.run_sequence import read_estimates_csv
 from radar_odom.se2 import chain_relative, relative_from_absolute
 
 DRIVE_NAME = "radiate-2019-02-12-edinburgh"
@@ -90,7 +90,7 @@ def _yaw_steps(poses: np.ndarray) -> np.ndarray:
 def drive_run(drive, tmp_path_factory):
     """``radar-odom run DRIVE -o OUT`` (defaults: shipped model, auto offsets, plot): its exit status,
     stdout, and the `RunResult` that `run_sequence` handed to the CLI (recorded on the way)."""
-    import radar_odom.commands.run_sequence as run_module
+    import radar_odom.runs.run_sequence as run_module
 
     out = tmp_path_factory.mktemp("real-drive") / "out"
     results = []
@@ -222,8 +222,8 @@ def test_real_drive_azimuths_turn_the_way_the_ins_heading_turns(drive_run):
 def test_real_mirrored_sweeps_turn_the_estimate_against_the_reference(drive, tmp_path):
     """The reader itself, not a mirrored pose: the same 40 sweeps (frames 341–380, a 35° left turn)
     with their azimuth columns reversed turn the estimate the other way."""
-    from radar_odom.commands.run_sequence import run_sequence
     from radar_odom.model_zoo import default_model_name, resolve_model
+    from radar_odom.runs.run_sequence import run_sequence
 
     seq = _stretch(drive, tmp_path / "mirrored", range(341, 381), mirror=True)
     r = run_sequence(seq, resolve_model(default_model_name()), tmp_path / "out", show_progress=False, plot=False,

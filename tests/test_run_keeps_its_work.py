@@ -106,7 +106,7 @@ def test_a_bag_that_fails_after_the_odometry_is_a_warning(radiate_with_gnss, tin
                                                           monkeypatch):
     if importlib.util.find_spec("rosbags") is None:
         pytest.skip("needs rosbags (the ros or dev extra)")
-    import radar_odom.commands.run_sequence as run_mod
+    import radar_odom.runs.run_sequence as run_mod
     from radar_odom.errors import OutputError
 
     def full_disk(*args, **kwargs):

@@ -129,7 +129,7 @@ def test_an_absurd_heading_offset_is_refused_before_reading(value, tmp_path, cap
 
 
 def test_a_heading_offset_on_a_bag_is_said_to_be_ignored(tmp_path, capsys, monkeypatch):
-    import radar_odom.commands.run_sequence as run_mod
+    import radar_odom.runs.run_sequence as run_mod
 
     bag = tmp_path / "drive.mcap"
     bag.write_bytes(b"")

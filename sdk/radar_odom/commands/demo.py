@@ -47,7 +47,7 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from ..model_zoo import default_model_name, resolve_model
     from ..outputs import check_output_folder, files_below, remove_own_outputs, write_folder_manifest
-    from .run_sequence import new_folder_removed_on_error
+    from ..runs.run_sequence import new_folder_removed_on_error
 
     # before any work, in one line: -o a file, or a folder holding anything but an earlier demo's own files
     own = check_output_folder(args.output, MANIFEST, "demo")

@@ -138,7 +138,7 @@ def run(args) -> int:
     from ..model_zoo import default_model_name, resolve_model
     from ..odometry.gaps import GAP, NEW_SEGMENT, NEW_SEGMENT_GAP_S
     from ..odometry.pipeline import DEFAULT_PREFETCH
-    from .run_sequence import earlier_outputs, run_sequence
+    from ..runs.run_sequence import earlier_outputs, run_sequence
 
     model_spec = args.model or default_model_name()
     model = resolve_model(model_spec)

@@ -24,8 +24,8 @@ def run_demo(frames: int = DEFAULT_FRAMES, model: str | None = None, seed: int =
 
     from ..evaluation.report import format_metrics
     from ..model_zoo import resolve_model
+    from ..runs.run_sequence import run_sequence
     from ..sim import write_drive
-    from .run_sequence import run_sequence
 
     model_path = resolve_model(model or default_model_name())
     out_dir = Path(out_dir)

@@ -27,8 +27,8 @@ def process_recording(model, recording, out_root, name: str, options: dict, key:
     import time
     import warnings
 
-    from ..commands.run_sequence import run_sequence
     from ..errors import GroundTruthWarning
+    from ..runs.run_sequence import run_sequence
     from .report import result_row
 
     out_root = Path(out_root)
