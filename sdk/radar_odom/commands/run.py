@@ -176,9 +176,6 @@ def run(args) -> int:
           f"({result.num_degenerate} degenerate; {prior}), {1e3 * result.seconds_per_step:.1f} ms per sweep")
     if result.reference_note:
         print(result.reference_note)
-    base = getattr(result, "time_base", None)  # a RunResult has one (a stand-in may not)
-    if base is not None and base.decided_by_match and base.summary() not in result.reference_note:
-        print(f"sweep times: {base.summary()}")  # the stamps' repairs as the match settled them, counted once
     text = format_metrics(result.metrics, result.step_errors)
     if not text and result.reference_note.startswith("reference: GNSS/INS present but not used"):
         text = "no metrics: the GNSS/INS reference is not used (see above)"

@@ -39,19 +39,22 @@ How (`fit_time_base`; every step a pure function below):
    no longer acts on them (issue 50: the odometer's match decides a step's periods whatever the stamps say).
 
 Every sweep's time is then its lattice time: the host's jitter is gone too; stamps off it by more than
-the jitter band (`TimeBase.moved`) are the ones a run reports. Nothing here depends on the sweeps'
+the jitter band (`TimeBase.moved`) are the ones a run reports. Stamps all within `CLEAN_STAMP_US` (5 ms) of
+the lattice are a sensor's own and are never moved (their times are the stamps as recorded). Nothing here depends on the sweeps'
 content; the shared RADIATE city drive and the hostile cases are in docs/time-base.md.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import SequenceError
 
 MIN_SWEEPS = 4  # fewer stamps cannot tell a late stamp from a slow sensor
+# stamps all within this of the fitted lattice are a sensor's own (jitter under 5 ms): kept as recorded
+CLEAN_STAMP_US = 5_000
 # the finest whole fraction of the common interval considered for the period: finer ones meet a late run's
 # catch-up intervals (all alike, a little short of a period) by chance
 MAX_DIVISOR = 4
@@ -91,8 +94,7 @@ class TimeBase:
         alternatives: ((i, (k_i, k_alt, …)), …) the sweeps whose index the stamps cannot tell (the
             fitted k first; `sweep_alternatives`): typically a sweep after a drop, whose stamp may
             instead be a period late with the drop after it (kept for the reader's report: the odometer's
-            match decides a step's periods itself); `decided` gives the time base it settles on.
-        decided_by_match: indices of the sweeps whose k a match decided (`decided`), in order.
+            match decides a step's periods itself, `radar_odom.odometry.match_stage`).
     """
 
     stamps_us: np.ndarray
@@ -103,36 +105,6 @@ class TimeBase:
     candidate_periods_us: tuple
     period_from: str = "stamps"
     alternatives: tuple = ()
-    decided_by_match: tuple = ()
-
-    def candidates(self, i: int) -> tuple:
-        """(k_i, k_alt, …) sweep ``i``'s index under each reading the stamps allow (the fit's first)."""
-        for j, ks in self.alternatives:
-            if j == i:
-                return ks
-        return (int(self.sweep_index[i]),)
-
-    def time_at(self, i: int, k: int) -> int:
-        """Sweep ``i``'s time (µs) were its index ``k``: its fitted time moved by whole periods."""
-        return int(self.times_us[i] + round((int(k) - int(self.sweep_index[i])) * self.period_us))
-
-    def decided(self, choices: dict) -> TimeBase:
-        """The time base with ``choices`` ({sweep i: k}, each one of `candidates` (i)) taken: those
-        sweeps' indices and times moved, their alternatives dropped, recorded in `decided_by_match`.
-
-        Raises:
-            SequenceError: a k that is not one of the sweep's candidates, or indices that no longer increase.
-        """
-        k, times = self.sweep_index.copy(), self.times_us.copy()
-        for i, ki in choices.items():
-            if int(ki) not in self.candidates(int(i)):
-                raise SequenceError(f"sweep {i}: index {ki} is none of the stamps' readings {self.candidates(int(i))}")
-            times[int(i)], k[int(i)] = self.time_at(int(i), int(ki)), int(ki)
-        if np.any(np.diff(k) < 1):
-            raise SequenceError("the decided sweep indices do not increase; decide each sweep after the one before it")
-        keep = tuple(a for a in self.alternatives if a[0] not in choices)
-        done = tuple(sorted(set(self.decided_by_match) | {int(i) for i in choices}))
-        return replace(self, times_us=times, sweep_index=k, alternatives=keep, decided_by_match=done)
 
     @property
     def corrections_us(self) -> np.ndarray:
@@ -184,8 +156,6 @@ class TimeBase:
             n = len(self.alternatives)
             parts.append(f"{n} sweep time{'s' if n != 1 else ''} the stamps cannot place (a dropped sweep before it, "
                          "or its stamp a period late and the drop after it; the odometry's match decides)")
-        if self.decided_by_match:
-            parts.append(f"{len(self.decided_by_match)} decided by the match")
         how = "" if self.period_from == "stamps" else f", {self.period_from}"
         return (f"{', '.join(parts)}; sensor period {self.period_us / 1e3:.2f} ms{how}, host jitter "
                 f"±{self.tolerance_us / 1e3:.1f} ms: every sweep time put on the sensor's period")
@@ -477,6 +447,10 @@ def fit_time_base(timestamps_us, period_hint_us: float | None = None) -> TimeBas
         lattice, period = fit_lattice_us(t, k, on_time)
         base = lattice - k * period
     times = np.round(lattice).astype(np.int64)
+    if np.all(np.abs(t - times) <= CLEAN_STAMP_US):
+        # a sensor's own stamps (Oxford, a bag stamped by the driver): nothing late or early beyond a few ms,
+        # so nothing to put back; the stamps are the times as recorded (issue 50: clean stamps never move)
+        times = t.copy()
     # the readings nearly as cheap as the fit's, on the lattice fitted last (its slots number as k)
     slots, cost = slot_path_costs(t, lattice - k * period, period, tol)
     alternatives = tuple((i, tuple(int(s) - int(k[0]) for s in ks)) for i, ks in sweep_alternatives(slots, cost, k))
