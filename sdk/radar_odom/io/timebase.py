@@ -39,9 +39,9 @@ How (`fit_time_base`; every step a pure function below):
    no longer acts on them (issue 50: the odometer's match decides a step's periods whatever the stamps say).
 
 Every sweep's time is then its lattice time: the host's jitter is gone too; stamps off it by more than
-the jitter band (`TimeBase.moved`) are the ones a run reports. Stamps all within `CLEAN_STAMP_US` (5 ms) of
-the lattice are a sensor's own and are never moved (their times are the stamps as recorded). Nothing here depends on the sweeps'
-content; the shared RADIATE city drive and the hostile cases are in docs/time-base.md.
+the jitter band (`TimeBase.moved`) are the ones a run reports. Stamps all within `CLEAN_STAMP_US` (5 ms)
+of the lattice are a sensor's own and are never moved (their times are the stamps as recorded). Nothing
+here depends on the sweeps' content; the shared RADIATE city drive and the hostile cases are in docs/time-base.md.
 """
 from __future__ import annotations
 
