@@ -385,7 +385,8 @@ def test_odometer_step_takes_any_sweep(odometer, sweep, reset):
     power, az, res, valid, dt_us = sweep
     if reset:
         odometer.reset()
-    last = int(odometer._stamps[-1]) if odometer._stamps else T0_US
+    stamps = odometer.trajectory.timestamps_us
+    last = int(stamps[-1]) if len(stamps) else T0_US
     t0 = last + dt_us
     scan = typed(RadarScan.from_arrays, t0 + np.arange(len(az)), az, power, valid=valid, range_resolution_m=res)
     if scan is None:

@@ -8,7 +8,7 @@ import pytest
 
 import radar_odom
 from radar_odom import RadarOdometer, polar_to_cartesian
-from radar_odom.errors import InvalidModelError
+from radar_odom.errors import ConfigError, InvalidModelError
 from radar_odom.model_file import SWEEP_INPUTS
 from radar_odom.odometry.sweep_input import sweep_feeds
 from radar_odom.onnx_model import OnnxModel
@@ -101,8 +101,11 @@ def test_metadata_says_the_form_and_the_schema_holds_it(sweep_form_models):
     assert info.form == "sweep" and info.inputs == (*SWEEP_INPUTS, "prev_state")
     assert info.input_shape == (info.sweep_geometry["num_azimuths"], info.sweep_geometry["num_bins"])
     assert info.state_shape == OnnxModel(radar_odom.pretrained("cart-0.4")).info.state_shape
-    # the graph draws the sweep as recorded: the odometer runs it without the options that draw it moved
-    odo = RadarOdometer(model, deskew=True, centre_yaw=True)
+    # the graph draws the sweep as recorded: the options that draw it moved are refused in one line (issue 51)
+    for option in ("deskew", "centre_yaw"):
+        with pytest.raises(ConfigError, match="cannot be de-skewed or drawn turned"):
+            RadarOdometer(model, **{option: True})
+    odo = RadarOdometer(model)
     assert not odo.deskew and not odo.centre_yaw
     # a sweep form that would read another input is refused, with what to do
     meta = dict(model.session.get_modelmeta().custom_metadata_map)
