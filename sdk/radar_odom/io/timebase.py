@@ -55,6 +55,10 @@ from ..errors import SequenceError
 MIN_SWEEPS = 4  # fewer stamps cannot tell a late stamp from a slow sensor
 # stamps all within this of the fitted lattice are a sensor's own (jitter under 5 ms): kept as recorded
 CLEAN_STAMP_US = 5_000
+# below this share of stamps within the jitter band of the fitted lattice, no lattice holds them: kept as
+# recorded (`as_recorded`; the shared RADIATE drive has 86 % on time, its 39 late stamps in three runs)
+MIN_ON_TIME_SHARE = 0.5
+AS_RECORDED = "stamps too irregular for a lattice: kept as recorded"  # `TimeBase.period_from` of `as_recorded`
 # the finest whole fraction of the common interval considered for the period: finer ones meet a late run's
 # catch-up intervals (all alike, a little short of a period) by chance
 MAX_DIVISOR = 4
@@ -139,6 +143,9 @@ class TimeBase:
     def summary(self) -> str:
         """One line for a run's notes: the stamps moved (late / early, how far), the sweeps dropped,
         the period and the jitter band; empty where no stamp was moved and none dropped."""
+        if self.period_from == AS_RECORDED:
+            return (f"sweep stamps too irregular for the sensor's period (most off any {self.period_us / 1e3:.1f} ms "
+                    "lattice by more than a host's jitter): kept as recorded; the odometry's match decides")
         if not self.moved.size and not self.dropped and not self.alternatives:
             return ""
         corr = self.corrections_us
@@ -413,6 +420,16 @@ def check_period_hint_us(value) -> float | None:
     return float(value)
 
 
+def as_recorded(t: np.ndarray, period_us: float, tol_us: float, candidates=()) -> TimeBase:
+    """The time base that keeps stamps ``t`` (int64[N], µs) as recorded: too irregular for a lattice (most of
+    them off any lattice by more than the jitter band, e.g. 100 ms of host jitter), where a fit would move
+    them further from the truth than they are (issue 50: 254.2 ms fitted for 249.8 ms, times 0.24 s off).
+    The stamps cannot say which sweeps were dropped either: one index a sweep (the odometer's match decides)."""
+    return TimeBase(t.copy(), t.copy(), np.arange(t.size, dtype=np.int64), float(period_us), float(tol_us),
+                    tuple(period_us / j for j in range(1, len(candidates) + 1)) or (float(period_us),),
+                    AS_RECORDED)
+
+
 def fit_time_base(timestamps_us, period_hint_us: float | None = None) -> TimeBase:
     """The recording's sweep times on the sensor's period, from its stamps (module docstring).
 
@@ -438,14 +455,19 @@ def fit_time_base(timestamps_us, period_hint_us: float | None = None) -> TimeBas
     period = refine_period_us(t, period)
     tol = tolerance_us(intervals, period)
     base = t[0] + local_phase_us(t, period, tol)
-    for _ in range(FIT_ROUNDS):
-        k = assign_sweep_indices(t, base, period, tol)
-        # on time: within the band of the lattice the slots were taken on (first: the local phase's)
-        on_time = np.abs(t - (base + k * period)) <= tol
-        if on_time.sum() < 2:
-            on_time = np.ones_like(on_time)
-        lattice, period = fit_lattice_us(t, k, on_time)
-        base = lattice - k * period
+    try:
+        for _ in range(FIT_ROUNDS):
+            k = assign_sweep_indices(t, base, period, tol)
+            # on time: within the band of the lattice the slots were taken on (first: the local phase's)
+            on_time = np.abs(t - (base + k * period)) <= tol
+            if on_time.sum() < 2:
+                on_time = np.ones_like(on_time)
+            lattice, period = fit_lattice_us(t, k, on_time)
+            base = lattice - k * period
+    except SequenceError:  # no lattice of that period holds the stamps (jitter of a period's order)
+        return as_recorded(t, period, tol, candidates)
+    if np.mean(np.abs(t - lattice) <= tol) < MIN_ON_TIME_SHARE:
+        return as_recorded(t, period, tol, candidates)
     times = np.round(lattice).astype(np.int64)
     if np.all(np.abs(t - times) <= CLEAN_STAMP_US):
         # a sensor's own stamps (Oxford, a bag stamped by the driver): nothing late or early beyond a few ms,
