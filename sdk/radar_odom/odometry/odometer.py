@@ -255,7 +255,9 @@ class RadarOdometer:
         sw.dt_s = (sw.ts - st.stamps[-1]) * 1e-6
         if self.max_gap_s is None and sw.dt_s > NEW_SEGMENT_GAP_S:
             return self._new_segment(st, sw)
-        sw.stamp_periods = self._clock.periods(sw.dt_s)  # the stamps' count: advice, the match decides
+        # the stamps' count: advice, the match decides; on a stream's first step nothing can, so they need a margin
+        first_step = self.config.time.match_decides and not self._prior.ready
+        sw.stamp_periods = self._clock.periods(sw.dt_s, stream_time.FIRST_STEP_MARGIN if first_step else 0.0)
         sw.odo_rel = sw.odometry.relative_pose(sw.dt_s) if sw.odometry is not None else None
         return NEXT
 

@@ -67,6 +67,10 @@ def azimuth_count(scan: RadarScan, stream_azimuths: int | None) -> tuple[int, st
 MIN_PERIOD_INTERVALS = 3
 # a sweep whose azimuth times span a turn of this long at least (s) tells the sensor's period itself
 MIN_ROTATION_S = 0.05
+# A stream's first step has no velocity for the match to agree with, so the stamps alone count its periods:
+# there they must say 1.75 periods, not 1.5, before a sweep is called dropped (a host's first stamp 143 ms
+# late made a phantom gap on a fresh junction drive, benchmarks/do_no_harm.py, seed 2055022335)
+FIRST_STEP_MARGIN = 0.25
 
 
 class StreamClock:
@@ -109,10 +113,11 @@ class StreamClock:
             return None
         return float(np.median(np.asarray(self._one_period)))
 
-    def periods(self, interval_s: float) -> int:
-        """The whole periods (≥ 1) the stamps put in ``interval_s`` (1 while the period is unknown)."""
+    def periods(self, interval_s: float, margin: float = 0.0) -> int:
+        """The whole periods (≥ 1) the stamps put in ``interval_s`` (1 while the period is unknown), rounded
+        after taking ``margin`` periods off (a step no match can judge: the stream's first)."""
         p = self.period_s
-        return 1 if p is None else max(1, int(round(float(interval_s) / p)))
+        return 1 if p is None else max(1, int(round(float(interval_s) / p - float(margin))))
 
     def observe(self, interval_s: float, periods: int) -> None:
         """A step's stamp interval and the periods the odometer took it to span."""
