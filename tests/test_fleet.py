@@ -211,3 +211,22 @@ def test_adapt_labels_on_ray_workers_are_each_recordings_own_runtime_chain(drive
     for source, (poses, rel) in zip(good[:2], got):
         want_poses, want_rel = run_runtime(cli_model, read_recording(source).scans, 1)
         assert np.array_equal(poses, want_poses) and np.array_equal(rel, want_rel, equal_nan=True)
+
+
+def test_the_report_ranks_kitti_percent_and_per_step_metres_in_tables_of_their_own(tmp_path):
+    """Issue 51: fleet.md's "Worst drives" mixed % and m per step in one column. Each unit gets its own table
+    and header; no row carries a unit of its own."""
+    from radar_odom.fleet.report import COLUMNS, DONE, write_summary
+
+    def row(name, **values):
+        return {**dict.fromkeys(COLUMNS, ""), "recording": name, "status": DONE, "sweeps": "10", "duration_s": "2.5",
+                "length_m": "20", "mean_speed_m_s": "8", **values}
+
+    rows = [row("long-a", translation_percent="3.5"), row("long-b", translation_percent="7.25"),
+            row("short-a", step_translation_m="0.125")]
+    text = write_summary(tmp_path, rows).read_text()
+    kitti, short = text.split("## Worst drives")[1].split("## Worst short drives")
+    assert "| recording | KITTI translation % |" in kitti and "| recording | mean step error m |" in short
+    assert kitti.index("long-b") < kitti.index("long-a") and "short-a" not in kitti
+    assert "short-a" in short and "long-a" not in short
+    assert "m per step" not in text and " %" not in text.split("## Worst drives")[1].replace("translation %", "")

@@ -137,13 +137,13 @@ def kitti_metrics(gt_poses, est_poses, step: int = 4, lengths=KITTI_LENGTHS_M, p
             tl, rl = pooled(rows)
             per_length.append({
                 "length_m": length,
-                "translation_percent": 100.0 * tl,
-                "rotation_deg_per_m": math.degrees(rl),
-                "num_segments": n,
+                "translation_percent": float(100.0 * tl),  # plain floats: printed as numbers, not np.float64(…)
+                "rotation_deg_per_m": float(math.degrees(rl)),
+                "num_segments": int(n),
             })
     return {
-        "translation_percent": 100.0 * t,
-        "rotation_deg_per_m": math.degrees(r),
+        "translation_percent": float(100.0 * t),
+        "rotation_deg_per_m": float(math.degrees(r)),
         "step": int(step),
         "pooling": pooling,
         "num_segments": int(sum(len(s) for s in used)),

@@ -149,15 +149,21 @@ def write_summary(out_dir, rows: list[dict], command: str = "") -> Path:
                     key=lambda t: (t[1] != "translation_percent", -t[0]))
     if ranked:
         plot = _plot_errors(out_dir / "fleet-error.png", ranked)
-        lines += ["## Worst drives", "", "| recording | error | length m | mean speed m/s | plot |",
-                  "|---|---|---|---|---|"]
-        for value, key, r in ranked[:WORST_SHOWN]:
-            unit = "%" if key == "translation_percent" else "m per step"
-            own = out_dir / r["recording"] / "trajectory.png"
-            pic = f"[trajectory]({r['recording']}/trajectory.png)" if own.is_file() else ""
-            lines.append(f"| `{r['recording']}` | {value:.3f} {unit} | {float(r['length_m']):.1f} | "
-                         f"{_num(r['mean_speed_m_s'], '.2f')} | {pic} |")
-        lines.append("")
+        # one table per unit: KITTI % (drives long enough for its segments), then per-step metres (shorter ones)
+        for key, title, unit in (("translation_percent", "Worst drives", "KITTI translation %"),
+                                 ("step_translation_m", "Worst short drives (too short for KITTI segments)",
+                                  "mean step error m")):
+            worst = [(value, r) for value, k, r in ranked if k == key][:WORST_SHOWN]
+            if not worst:
+                continue
+            lines += [f"## {title}", "", f"| recording | {unit} | length m | mean speed m/s | plot |",
+                      "|---|---|---|---|---|"]
+            for value, r in worst:
+                own = out_dir / r["recording"] / "trajectory.png"
+                pic = f"[trajectory]({r['recording']}/trajectory.png)" if own.is_file() else ""
+                lines.append(f"| `{r['recording']}` | {value:.3f} | {float(r['length_m']):.1f} | "
+                             f"{_num(r['mean_speed_m_s'], '.2f')} | {pic} |")
+            lines.append("")
         if plot is not None:
             lines += ["![error against speed and distance](fleet-error.png)", ""]
     else:
