@@ -122,3 +122,132 @@ def test_only_a_cartesian_stream_graph_is_wrapped(tiny_polar_model, tiny_pair_mo
     for path in (tiny_polar_model, tiny_pair_model):
         with pytest.raises(ExportError, match="Cartesian stream-form"):
             wrap_stream_model(path)
+
+
+# ------------------------------------------------------------------ the sweep is checked as the SDK path checks it
+@pytest.fixture(scope="module")
+def two_sweeps():
+    return _drive(seed=5, frames=2)
+
+
+def _garbage(feeds: dict, case: str) -> dict:
+    """The issue's garbage sweeps (issue 51), made from clean ``feeds``."""
+    g = dict(feeds)
+    if case == "4000 azimuths":  # every row ten times, 0.09° apart: the SDK draws it, the bearing table cannot
+        g["power"] = np.repeat(feeds["power"], 10, axis=0)
+        g["azimuths_rad"] = ((np.arange(4000) + 0.5) * (2 * math.pi / 4000)).astype(np.float32)
+    elif case == "degrees":
+        g["azimuths_rad"] = np.degrees(feeds["azimuths_rad"]).astype(np.float32)
+    elif case == "descending":
+        g["power"], g["azimuths_rad"] = feeds["power"][::-1].copy(), feeds["azimuths_rad"][::-1].copy()
+    elif case == "negative resolution":
+        g["range_resolution_m"] = -feeds["range_resolution_m"]
+    elif case == "one row":
+        g["power"], g["azimuths_rad"] = feeds["power"][:1], feeds["azimuths_rad"][:1]
+    return g
+
+
+def _sdk_scan(feeds: dict, t0_us: int = 10**15) -> RadarScan:
+    """The same arrays as the SDK path takes them, the first azimuth at ``t0_us``."""
+    rows = np.asarray(feeds["azimuths_rad"]).shape[0]
+    return RadarScan.from_arrays(t0_us + 62 * np.arange(rows), feeds["azimuths_rad"], feeds["power"],
+                                 range_resolution_m=float(feeds["range_resolution_m"][0]),
+                                 range_offset_m=float(feeds["range_offset_m"][0]))
+
+
+# case -> (the error the SDK path and the sweep form raise, what the sweep form's message says)
+GARBAGE = {
+    "4000 azimuths": (radar_odom.errors.ModelMismatchError, r"4000 azimuths.*bearing table.*stream form"),
+    "degrees": (radar_odom.errors.ScanFormatError, r"\[0, 2π\) radians, got \[0, 359.*degrees: give radians"),
+    "descending": (radar_odom.errors.ScanFormatError, r"increase strictly.*they decrease: list the rows"),
+    "negative resolution": (radar_odom.errors.ScanFormatError, r"range_resolution_m must be > 0 .*got -0.0432"),
+    "one row": (radar_odom.errors.ScanFormatError, r"power must be a 2-D array .*at least 2 rows.*\(1, 3768\)"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(GARBAGE))
+def test_the_sweep_form_refuses_each_garbage_sweep_as_the_sdk_path_does(sweep_form_models, two_sweeps, case):
+    """Issue 51: fed by hand (OnnxModel.run, GraphStep), the sweep form took each of these and returned finite
+    poses (4000 azimuths: 6.7 cm from the SDK's). Now the same typed error as the SDK path, saying what to do."""
+    from radar_odom.odometry.graph_step import GraphStep
+
+    error, says = GARBAGE[case]
+    model = OnnxModel(sweep_form_models["cart-0.4"], threads=1)
+    clean = sweep_feeds(two_sweeps[0])
+    state = model.run({**clean, "prev_state": np.zeros(model.info.state_shape, np.float32)})["state"]
+    bad = _garbage(clean, case)
+    with pytest.raises(error, match=says) as raised:
+        model.run({**bad, "prev_state": state})
+    assert "cart-0.4-sweep.onnx" in str(raised.value) and "\n" not in str(raised.value)
+    with pytest.raises(error, match=says):
+        GraphStep(model).match(bad, state)  # the odometer's own call of the graph
+    if case == "4000 azimuths":
+        # the SDK path draws it (any azimuth count); the sweep form's odometer refuses the sweep before its graph
+        scan = _sdk_scan(bad, two_sweeps[1].timestamp_us)  # the next sweep's time
+        sdk = RadarOdometer(radar_odom.pretrained("cart-0.4"), threads=1)
+        assert sdk.step(two_sweeps[0]) is None and sdk.step(scan) is not None
+        graph = RadarOdometer(model)
+        graph.step(two_sweeps[0])
+        with pytest.raises(error, match=says):
+            graph.step(scan)
+    else:  # the SDK path refuses the same arrays with the same type
+        with pytest.raises(error):
+            _sdk_scan(bad)
+
+
+def test_sweep_feeds_of_an_unchecked_scan_are_refused_for_bare_onnxruntime(two_sweeps):
+    """docs/sweep-form.md feeds bare onnxruntime with sweep_feeds(scan): a RadarScan built without from_arrays's
+    checks (azimuths in degrees) is refused there, not handed to the graph."""
+    import dataclasses
+
+    scan = two_sweeps[0]
+    degrees = dataclasses.replace(scan, azimuths_rad=np.degrees(scan.azimuths_rad).astype(np.float32))
+    with pytest.raises(radar_odom.errors.ScanFormatError, match="degrees: give radians"):
+        sweep_feeds(degrees)
+    assert set(sweep_feeds(scan)) == set(SWEEP_INPUTS)
+
+
+@pytest.mark.parametrize("geometry", [
+    dict(rows=400, bins=3360, res=0.0596, offset=-0.31),  # Boreas
+    dict(rows=400, bins=3768, res=0.0432, offset=0.0, jitter=0.4),  # Oxford, azimuths off a regular step
+    dict(rows=240, bins=2000, res=0.05, offset=0.5, dropped=(0, 7, 8, 120)),  # dropped rows
+    dict(rows=2048, bins=1000, res=0.1, offset=0.0),  # one row per table bin: the most the sweep form draws
+])
+def test_the_checks_pass_every_sweep_the_sweep_form_draws(geometry):
+    import dataclasses
+
+    from radar_odom.odometry.sweep_checks import check_sweep_feeds, check_sweep_geometry
+
+    # the shipped model's metadata as its sweep form carries it (no onnx needed to wrap one)
+    sweep_info = dataclasses.replace(OnnxModel(radar_odom.pretrained("cart-0.4"), threads=1).info, form="sweep")
+    scan = _geometry_scan(np.random.default_rng(3), **geometry)
+    check_sweep_feeds(sweep_feeds(scan), sweep_info)
+    check_sweep_geometry(scan, sweep_info)
+
+
+def test_the_bearing_table_takes_2048_rows_and_no_more():
+    from radar_odom.model_file import SWEEP_TABLE_BINS
+    from radar_odom.odometry.sweep_checks import sweep_form_table_problem
+
+    def regular(n):
+        return ((np.arange(n) + 0.5) * (2 * math.pi / n)).astype(np.float32)
+
+    assert SWEEP_TABLE_BINS == 2048
+    assert sweep_form_table_problem(regular(400)) is None and sweep_form_table_problem(regular(2048)) is None
+    assert "2049 azimuths" in sweep_form_table_problem(regular(2049))
+    pytest.importorskip("onnx", reason="the export side's constant")
+    from radar_odom_export.sweep_form import TABLE_BINS
+
+    assert TABLE_BINS == SWEEP_TABLE_BINS  # the graph's table is the one the runtime checks against
+
+
+def test_openvino_checks_the_sweep_as_onnxruntime_does(sweep_form_models, two_sweeps):
+    """OpenVinoModel.run takes the same feeds (docs/sweep-form.md): the same check, before OpenVINO is asked."""
+    from radar_odom.runtimes import OpenVinoModel
+
+    stub = OpenVinoModel.__new__(OpenVinoModel)  # no compile: the check comes before the infer request
+    checked = OnnxModel(sweep_form_models["cart-0.4"], threads=1)
+    stub.path, stub.info, stub.output_names = checked.path, checked.info, checked.output_names
+    bad = _garbage(sweep_feeds(two_sweeps[0]), "degrees")
+    with pytest.raises(radar_odom.errors.ScanFormatError, match="degrees: give radians"):
+        stub.run({**bad, "prev_state": np.zeros(checked.info.state_shape, np.float32)})

@@ -48,12 +48,13 @@ from pathlib import Path
 import numpy as np
 
 from radar_odom.errors import ExportError
-from radar_odom.model_file import SWEEP_INPUTS, ModelInfo, build_metadata, io_names
+from radar_odom.model_file import SWEEP_INPUTS, SWEEP_TABLE_BINS, ModelInfo, build_metadata, io_names
 from radar_odom.polar import pixel_range_bearing
 
 # bearing-table bins over the turn: the drawing is exact while no bin holds two azimuths, i.e. for azimuth
-# spacings above 360°/2048 = 0.18° (a Navtech sweep's 400 rows are 0.9° apart)
-TABLE_BINS = 2048
+# spacings above 360°/2048 = 0.18° (a Navtech sweep's 400 rows are 0.9° apart); the runtime's constant, which
+# refuses a sweep the table cannot draw (radar_odom.sweep_arrays.sweep_form_table_problem)
+TABLE_BINS = SWEEP_TABLE_BINS
 _PREFIX = "sweep_form/"  # every tensor the front end adds; never a name of the stream graph
 
 

@@ -70,6 +70,9 @@ FORMS = ("stream", "pair", "sequence", "sweep")
 STATE_FORMS = ("stream", "sweep")  # the forms that take and return a stream state
 # the sweep form's inputs besides ``prev_state``, in graph order (docs/sweep-form.md)
 SWEEP_INPUTS = ("power", "azimuths_rad", "range_resolution_m", "range_offset_m")
+# the sweep form's bearing table: equal bins over the turn; its drawing is exact where no bin holds two azimuths
+# (azimuths more than 360°/2048 = 0.18° apart; a Navtech sweep's 400 rows are 0.9° apart; docs/sweep-form.md)
+SWEEP_TABLE_BINS = 2048
 DEFAULT_OPSET = 18  # the ONNX opset exports write unless asked for another (CLI ``--opset``)
 # the lowest opset an export reaches: torch's dynamo exporter writes 18 and converts down with onnx's version
 # converter, which has no adapter for Pad below 18 (`radar-odom export cart-0.8 --opset 17` fails so)

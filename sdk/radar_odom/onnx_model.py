@@ -19,6 +19,7 @@ import numpy as np
 
 from .errors import ConfigError, InvalidModelError, ModelNotFoundError
 from .model_file import FORMAT, GEOMETRY_KEYS, ModelInfo, check_signature, profile_digest
+from .sweep_arrays import check_sweep_feeds
 
 __all__ = ["FORMAT", "GEOMETRY_KEYS", "ModelInfo", "OnnxModel", "physical_cores", "profile_digest",
            "session_options"]
@@ -202,6 +203,11 @@ class OnnxModel:
         self.output_names = [o.name for o in outputs]
 
     def run(self, feeds: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """Outputs by name for float32 ``feeds`` by input name. A sweep-form model's sweep arrays are checked first
+        as the SDK path checks a sweep (`radar_odom.sweep_arrays.check_sweep_feeds`: `ScanFormatError`,
+        `ModelMismatchError`); a feed the graph cannot run is an `InvalidModelError`."""
+        if self.info.form == "sweep":
+            check_sweep_feeds(feeds, self.info, self.path.name)
         try:
             values = self.session.run(self.output_names, feeds)
         except Exception as exc:  # noqa: BLE001 - onnxruntime's own exception types

@@ -36,6 +36,7 @@ import numpy as np
 
 from .errors import ConfigError, InvalidModelError, MissingExtraError
 from .onnx_model import OnnxModel, check_threads
+from .sweep_arrays import check_sweep_feeds
 
 # f32 arithmetic throughout and no Snippets fusion: the poses of onnxruntime (module docstring)
 OPENVINO_CPU_CONFIG = {"INFERENCE_PRECISION_HINT": "f32", "SNIPPETS_MODE": "DISABLE"}
@@ -87,13 +88,16 @@ class OpenVinoModel:
         self._outputs = {name: self._compiled.output(name) for name in self.output_names}
 
     def run(self, feeds: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        """Outputs by name for float32 ``feeds`` by input name (`OnnxModel.run`'s contract: a feed that does not
-        fit the graph is an `InvalidModelError`, as there); arrays are copies."""
+        """Outputs by name for float32 ``feeds`` by input name (`OnnxModel.run`'s contract: a sweep-form model's
+        sweep arrays checked as the SDK checks a sweep, a feed that does not fit the graph an `InvalidModelError`,
+        as there); arrays are copies."""
         names = list(feeds) if isinstance(feeds, dict) else None
         if names is None or sorted(names) != sorted(self.info.inputs):
             given = "not a dict" if names is None else f"given {names}"
             raise InvalidModelError(f"{self.path}: OpenVINO cannot run the model on this feed (the graph's inputs "
                                     f"are {list(self.info.inputs)}, {given})")
+        if self.info.form == "sweep":  # the sweep's arrays, checked as OnnxModel.run checks them
+            check_sweep_feeds(feeds, self.info, self.path.name)
         try:
             result = self._request.infer(feeds)
         except Exception as exc:  # noqa: BLE001 - OpenVINO's RuntimeError: where it checked, then what failed

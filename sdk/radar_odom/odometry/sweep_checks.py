@@ -3,9 +3,12 @@
 `sweep_problem` says why a sweep cannot be matched (too few valid rows, partial coverage,
 saturated, blank, noise only); `check_sweep_geometry` refuses a sweep the model cannot take
 (too short for a Cartesian model's disc, range bins no radar has for it (`implausible_range_bins`),
-another geometry for a polar one); `model_region_m`
+another geometry for a polar one, azimuths closer than a sweep-form graph draws
+(`sweep_form_table_problem`)); `model_region_m`
 is the range band a model sees. Pure functions of the sweep and the model's `ModelInfo`: the
-odometer, `match_sequence` and the tooling share them.
+odometer, `match_sequence` and the tooling share them. The checks of a sweep's arrays that need no
+`RadarScan` (the range bins, a sweep-form model's feeds: `check_sweep_feeds`) live in `radar_odom.sweep_arrays`,
+re-exported here.
 """
 from __future__ import annotations
 
@@ -13,15 +16,20 @@ import numpy as np
 
 from ..errors import ModelMismatchError
 from ..onnx_model import GEOMETRY_KEYS
+from ..polar import sampling_azimuths
 from ..scan import RadarScan
+from ..sweep_arrays import (  # noqa: F401  (re-exported: the range bins' checks live beside the sweep form's)
+    MAX_OFFSET_SHARE,
+    MAX_RESOLUTION_RATIO,
+    MIN_RANGE_OFFSET_M,
+    check_cartesian_bins,
+    check_sweep_feeds,
+    implausible_range_bins,
+    sweep_form_fix,
+    sweep_form_table_problem,
+)
 
 MIN_COVERAGE = 0.75
-# a sweep's range bins may be this many times finer or coarser than those the model was trained on, no more: real
-# radars span 4x (Oxford 0.0432 m, RADIATE 0.1736 m), a wrong --range-resolution-m is typically 10x or more off
-MAX_RESOLUTION_RATIO = 8.0
-# the range of a sweep's column 0 is a calibration of decimetres (Boreas −0.31 m); below this it is a wrong setting
-MIN_RANGE_OFFSET_M = -5.0
-MAX_OFFSET_SHARE = 0.5  # a sweep starting beyond half the correlated disc's radius leaves 3/4 of its area empty
 NOISE_STRUCTURE = 0.2
 _MAX_STAT_BINS = 256  # range bins sampled for the statistics (a stride over the model's region)
 
@@ -137,51 +145,17 @@ def model_region_m(info) -> tuple[float, float]:
     return float(p.near_range_m), float(geom["range_offset_m"]) + nb * float(geom["range_resolution_m"])
 
 
-def implausible_range_bins(range_resolution_m: float, range_offset_m: float, info) -> str | None:
-    """Why range bins of ``range_resolution_m`` (m per bin) from ``range_offset_m`` (m, the range of column 0)
-    cannot be a radar's for the Cartesian model ``info`` (a `ModelInfo`), or None: a resolution more than
-    `MAX_RESOLUTION_RATIO` times finer or coarser than the model's sweeps' (its ``sweep_geometry``, where it
-    has one), an offset below `MIN_RANGE_OFFSET_M` (ranges below zero), or one beyond `MAX_OFFSET_SHARE` of
-    the radius of the disc the model correlates (``support_radius_m``: most of its area would be missing).
-    The reach (the disc beyond the last bin) is `check_sweep_geometry`'s own test."""
-    p = info.profile
-    want = (info.sweep_geometry or {}).get("range_resolution_m")
-    if want:
-        ratio = float(range_resolution_m) / float(want)
-        if not 1.0 / MAX_RESOLUTION_RATIO <= ratio <= MAX_RESOLUTION_RATIO:
-            return (f"range bins of {range_resolution_m:g} m are {ratio:.3g}x the {float(want):g} m of the sweeps the "
-                    f"model was made for (at most {MAX_RESOLUTION_RATIO:g}x either way: Oxford 0.0432 m, RADIATE "
-                    "0.1736 m)")
-    if range_offset_m < MIN_RANGE_OFFSET_M:
-        return (f"column 0 lies at {range_offset_m:g} m, below {MIN_RANGE_OFFSET_M:g} m (a radar's first bin is "
-                "within decimetres of its antenna: Boreas −0.31 m)")
-    if range_offset_m >= MAX_OFFSET_SHARE * float(p.support_radius_m):
-        return (f"column 0 lies at {range_offset_m:g} m, beyond half the radius of the disc the model correlates "
-                f"({float(p.support_radius_m):.2f} m): most of the disc would be missing")
-    return None
-
-
 def check_sweep_geometry(scan: RadarScan, info, model_name: str = "the model") -> None:
     """`ModelMismatchError` unless the model described by ``info`` (a `ModelInfo`) can take
-    ``scan`` (see the module docstring); ``model_name`` is used in the message."""
+    ``scan`` (see the module docstring); ``model_name`` is used in the message. A sweep-form model
+    also needs azimuths its bearing table can draw (`sweep_form_table_problem`)."""
     if info.profile.input_kind != "polar":
-        why = implausible_range_bins(scan.range_resolution_m, scan.range_offset_m, info)
-        if why is not None:
-            raise ModelMismatchError(
-                f"{scan.source}: {why}; check the range resolution and offset the sweep was read with "
-                "(--range-resolution-m / --range-offset-m for a bag, range_resolution_m= / range_offset_m= in "
-                "RadarScan.from_arrays or load_scan)")
-        need = info.profile.support_radius_m
-        have = scan.max_range_m
-        if have < need - 1e-6:
-            p = info.profile
-            raise ModelMismatchError(
-                f"{scan.source}: the sweep reaches {have:.2f} m ({scan.num_bins} bins of "
-                f"{scan.range_resolution_m:g} m), but model {model_name} correlates a disc of "
-                f"radius {need:.2f} m ({p.width_px} px at {p.resolution_m:g} m/px less the "
-                f"±{p.translation_cells}-cell search window); use a model with a smaller grid "
-                f"(width_px × resolution_m) or sweeps that reach at least {need:.2f} m"
-            )
+        check_cartesian_bins(scan.source, scan.num_bins, float(scan.range_resolution_m), float(scan.range_offset_m),
+                              info, model_name)
+        if info.form == "sweep":
+            why = sweep_form_table_problem(sampling_azimuths(scan))  # the azimuths the graph is fed
+            if why is not None:
+                raise ModelMismatchError(f"{scan.source}: {why}; {sweep_form_fix(info, model_name)}")
         return
     want = info.sweep_geometry
     got = scan.geometry

@@ -15,6 +15,7 @@ import numpy as np
 
 from ..polar import filled_power, polar_to_cartesian, sampling_azimuths
 from ..scan import RadarScan
+from ..sweep_arrays import check_sweep_feeds
 
 # Below this displacement over one sweep (m, and the yaw's arc at the grid's edge) de-skew moves no
 # pixel by a measurable amount: the cached static maps are used instead (same image within 5 % of
@@ -84,11 +85,22 @@ def twists_differ(a, b, scan: RadarScan, profile) -> bool:
     return sweep_shift_m(za - zb, scan, profile) >= REDRAW_FRACTION_PX * profile.resolution_m
 
 
-def sweep_feeds(scan: RadarScan) -> dict[str, np.ndarray]:
+def sweep_feeds(scan: RadarScan, info=None) -> dict[str, np.ndarray]:
     """The sweep-form graph's inputs for ``scan`` but the state: ``power`` float32[A, B] in [0, 1] (short runs
     of dropped rows filled, `radar_odom.polar.filled_power`), ``azimuths_rad`` float32[A] (those of dropped rows
     made increasing, `radar_odom.polar.sampling_azimuths`), ``range_resolution_m`` and ``range_offset_m``
-    float32[1]: what `polar_to_cartesian` draws from, so the graph draws the same image."""
+    float32[1]: what `polar_to_cartesian` draws from, so the graph draws the same image.
+
+    Checked as the SDK path checks a sweep (`radar_odom.sweep_arrays.check_sweep_feeds`; with ``info``, the
+    model's `ModelInfo`, against that model too), so that a `RadarScan` made without `RadarScan.from_arrays`'s
+    checks, fed to bare onnxruntime, is refused (`ScanFormatError`, `ModelMismatchError`), not matched."""
+    feeds = _sweep_arrays(scan)
+    check_sweep_feeds(feeds, info)
+    return feeds
+
+
+def _sweep_arrays(scan: RadarScan) -> dict[str, np.ndarray]:
+    """`sweep_feeds` unchecked (the odometer checks the sweep, `OnnxModel.run` the feeds)."""
     return {
         "power": np.ascontiguousarray(filled_power(scan), dtype=np.float32),
         "azimuths_rad": np.ascontiguousarray(sampling_azimuths(scan), dtype=np.float32),
@@ -106,7 +118,7 @@ def graph_input(scan: RadarScan, info, motion: SweepMotion | None = None):
     if info.form == "sweep":
         if motion is not None and not motion.is_identity:
             raise ValueError("a sweep-form model draws the sweep as recorded: it cannot be de-skewed or moved")
-        return sweep_feeds(scan)
+        return _sweep_arrays(scan)  # checked by the odometer (check_sweep_geometry) and the model's run
     if p.input_kind == "polar":
         if motion is not None and not motion.is_identity:
             raise ValueError("a polar-input model reads the sweep as recorded: it cannot be de-skewed or moved")
