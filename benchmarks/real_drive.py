@@ -70,13 +70,14 @@ def export_classical(masking: str, out_dir: Path, model_path) -> Path | None:
 
 
 def run_model(model, scans, deskew: bool, with_estimates: bool = False, centre_yaw: bool = False,
-              sweep_period_s: float | None = None):
+              config=None):
     """(absolute poses float64[N, 3, 3], seconds per sweep, gaps crossed) of one matcher, and
-    with ``with_estimates`` its N − 1 estimates (`radar_odom.Estimate`) and its profile too.
-    ``sweep_period_s``: the recording's fitted period, as `radar-odom run` passes it."""
+    with ``with_estimates`` its N − 1 estimates (`radar_odom.Estimate`) and its profile too. As `radar-odom run`
+    runs it (the odometer counts the sensor's periods itself); ``config``: ``"plain"`` for plain matching."""
     from radar_odom import RadarOdometer
 
-    odo = RadarOdometer(model, deskew=deskew, centre_yaw=centre_yaw, sweep_period_s=sweep_period_s)
+    options = {"deskew": deskew, "centre_yaw": centre_yaw} if config is None else {}
+    odo = RadarOdometer(model, config=config, **options)
     t0 = time.perf_counter()
     ests = [e for e in (odo.step(s) for s in scans) if e is not None]
     gaps = sum("gap" in e.flags for e in ests)
@@ -171,6 +172,8 @@ def main(argv=None) -> int:
     ap.add_argument("--stretch", default=None, metavar="A:B",
                     help="score sweeps A..B-1 only (Python slice of the drive's sweeps, e.g. 200: for the "
                          "held-out last 80); default: the whole drive")
+    ap.add_argument("--plain", action="store_true",
+                    help="the model rows with plain matching (radar-odom run --plain: the stamps as recorded)")
     ap.add_argument("--markdown", type=Path, default=None, help="write the table here too")
     ap.add_argument("--plot", type=Path, default=None, help="write the trajectory plot here (PNG)")
     args = ap.parse_args(argv)
@@ -183,7 +186,7 @@ def main(argv=None) -> int:
     from radar_odom.model_zoo import default_model_name
 
     seq = read_sequence(args.drive)
-    scans = [f.scan for f in seq]
+    scans = [f.scan for f in (read_sequence(args.drive, repair_stamps=False) if args.plain else seq)]
     names = args.models if args.models is not None else pretrained_names()
     default = default_model_name()
     models = {n: (pretrained(n) if n in pretrained_names() else Path(n)) for n in names}
@@ -198,8 +201,7 @@ def main(argv=None) -> int:
                 models[label] = path
     # the reference, once for every row: clock offset from the default model's own run
     # ... at the reader's own sweep times (its time base, `radar_odom.io.timebase`: one answer per run)
-    period_s = seq.time_base.period_s if seq.time_base is not None else None
-    ref_poses, _, _ = run_model(pretrained(default), scans, deskew=False, sweep_period_s=period_s)
+    ref_poses, _, _ = run_model(pretrained(default), [f.scan for f in seq], deskew=False)
     gt, info, note = gnss_reference(seq.reference, seq.timestamps_us, ref_poses, time_base=seq.time_base)
     if args.stretch:
         a, _, b = args.stretch.partition(":")
@@ -215,7 +217,8 @@ def main(argv=None) -> int:
     for label, model in models.items():
         for deskew in deskews:
             poses, s_per, gaps, ests, profile = run_model(model, scans, deskew, with_estimates=True,
-                                                          centre_yaw=args.centre_yaw, sweep_period_s=period_s)
+                                                          centre_yaw=args.centre_yaw,
+                                                          config="plain" if args.plain else None)
             sc = score(gt, poses, ests)
             sc["d2"] = covariance_fit(gt, poses, ests, profile)
             results.append((label, deskew, sc, f"{1e3 * s_per:.0f}", gaps))
