@@ -118,6 +118,18 @@ def sweep_form_models(tmp_path_factory) -> dict:
 
 
 # --------------------------------------------------------------------------- the torch-free job
+
+
+def one_error_line(capsys, command: str) -> str:
+    """stderr of a refused command: exactly one line, the CLI's own error line (no traceback); returned."""
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.strip().splitlines() if ln.strip()]
+    assert "Traceback" not in err, err
+    assert len(lines) == 1, err
+    assert lines[0].startswith(f"radar-odom {command}: error: "), err
+    return lines[0]
+
+
 def _torchless_required() -> bool:
     return os.environ.get(TORCHLESS_ENV, "") not in ("", "0")
 

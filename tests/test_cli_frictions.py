@@ -5,6 +5,7 @@ import warnings
 import zipfile
 
 import pytest
+from conftest import one_error_line
 from test_radiate import write_radiate
 
 from radar_odom.commands.cli import main
@@ -13,15 +14,6 @@ from radar_odom.errors import StampWarning
 HAS_TORCH = all(importlib.util.find_spec(m) is not None for m in ("torch", "radar_odom_export"))
 needs_torch = pytest.mark.skipif(not HAS_TORCH, reason="needs torch (the export extra)")
 
-
-def one_error_line(capsys, command: str) -> str:
-    """stderr of a refused command: exactly one line, the CLI's own error line; returned."""
-    err = capsys.readouterr().err
-    lines = [ln for ln in err.strip().splitlines() if ln.strip()]
-    assert "Traceback" not in err, err
-    assert len(lines) == 1, err
-    assert lines[0].startswith(f"radar-odom {command}: error: "), err
-    return lines[0]
 
 
 @pytest.fixture

@@ -10,6 +10,7 @@ import time
 
 import numpy as np
 import pytest
+from conftest import one_error_line
 
 from radar_odom.commands.cli import main
 from radar_odom.errors import ConfigError, InvalidModelError, ModelNotFoundError, RadarOdomError
@@ -18,13 +19,6 @@ NO_RAY = importlib.util.find_spec("ray") is None
 needs_ray = pytest.mark.skipif(NO_RAY, reason='the fleet extra (Ray) is not installed: pip install -e ".[fleet]"')
 NO_TORCH = importlib.util.find_spec("torch") is None
 
-
-def one_error_line(capsys, command: str) -> str:
-    err = capsys.readouterr().err
-    lines = [ln for ln in err.strip().splitlines() if ln.strip()]
-    assert "Traceback" not in err and len(lines) == 1, err
-    assert lines[0].startswith(f"radar-odom {command}: error: "), err
-    return lines[0]
 
 
 @pytest.fixture(scope="module")
