@@ -96,6 +96,21 @@ class RunAborted(RadarOdomError):
         self.cause = cause
 
 
+class RunInterrupted(KeyboardInterrupt):
+    """``run_sequence`` was interrupted (Ctrl-C's `KeyboardInterrupt`, or what a caller raises for SIGTERM) during
+    the odometry: the outputs so far are written, marked partial, as ``on_error="stop"`` writes them.
+
+    A `KeyboardInterrupt` still (a caller's ``except KeyboardInterrupt`` keeps working), not a `RadarOdomError`.
+    The message says at which sweep and where the outputs are; ``result`` holds them (None where none could be
+    written); ``cause`` is the interrupt that stopped the run.
+    """
+
+    def __init__(self, message: str, result=None, cause: BaseException | None = None):
+        super().__init__(message)
+        self.result = result
+        self.cause = cause
+
+
 class GroundTruthWarning(UserWarning):
     """Ground-truth rows that were left out (non-finite values, conflicting duplicates); the
     message names the file and line numbers. The pairs they would have covered have no ground

@@ -8,6 +8,7 @@ import sys
 from .. import __version__
 from ..errors import RadarOdomError
 from . import COMMANDS
+from .interrupts import command_hint, exit_status, interrupted_line, sigterm_interrupts
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -29,13 +30,14 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        return int(args.func(args) or 0)
+        with sigterm_interrupts():  # SIGTERM unwinds as Ctrl-C does: the work so far is kept (commands/interrupts.py)
+            return int(args.func(args) or 0)
     except RadarOdomError as exc:
         print(f"radar-odom {args.command}: error: {exc}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM: one line, what was kept, 130 / 143
+        print(interrupted_line(args.command, exc, command_hint(args, exc)), file=sys.stderr)
+        return exit_status(exc)
 
 
 if __name__ == "__main__":

@@ -41,7 +41,8 @@ def register(subparsers) -> None:
              "earlier demo's (its files are replaced; a folder holding anything else is refused)",
     )
     p.add_argument("--threads", type=threads_arg, default=None, help="onnxruntime threads (default: physical cores)")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, interrupted=lambda args, exc: f"{args.output} holds this demo's files so far; "
+                                                           "`radar-odom demo` again replaces them")
 
 
 def run(args) -> int:

@@ -9,7 +9,8 @@ EXIT_OK, EXIT_ERROR, EXIT_SKIPPED = 0, 1, 3
 EPILOG = (
     "exit status: 0 every sweep was used; 3 the run finished but some sweeps were skipped "
     "(--on-error skip; listed on stderr and in skipped.csv); 1 an error stopped the run "
-    "(one line on stderr)."
+    "(one line on stderr); 130 Ctrl-C, 143 SIGTERM: the outputs so far are written, marked partial "
+    "(partial.txt), and one line says at which sweep."
 )
 
 
@@ -40,7 +41,18 @@ def register(subparsers) -> None:
                       help="also write the odometry as a ROS 2 bag (MCAP) folder: nav_msgs/Odometry on "
                            "/radar_odom/odometry (3x3 covariance in the x, y, yaw cells of the 6x6) and TF odom -> "
                            "base_link on /tf, stamped with the sweeps' header stamps")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, interrupted=interrupted)
+
+
+def interrupted(args, exc) -> str:
+    """What `radar-odom run` adds to its interrupted line (commands/interrupts.py): the outputs so far are written
+    and marked partial by `run_sequence` (its `RunInterrupted` says where); an interrupt before the odometry
+    leaves nothing (a new output folder is removed again)."""
+    from ..errors import RunInterrupted
+
+    if isinstance(exc, RunInterrupted):
+        return "the same command with --overwrite runs the whole recording again"
+    return "nothing written: the odometry had not begun"
 
 
 def register_recording_options(p):

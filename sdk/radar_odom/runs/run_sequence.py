@@ -17,6 +17,9 @@ drive. Outputs in ``out_dir``:
   truth the chained poses after it are unknown: the TUM file then holds the poses up to the first
   missing pair, and the KITTI file (which has no timestamps) is not written.
 - ``skipped.csv`` (only when a sweep was skipped): index, file, reason and message of each.
+- ``partial.txt`` (only when the run stopped before the end: ``on_error="stop"``, a gap beyond ``max_gap_s``, or
+  an interrupt): which sweeps the outputs hold and why the run stopped. Written first, so that an output folder
+  of a stopped run always says so; no metrics and no ground truth are written beside it.
 
 A run removes these files from ``out_dir`` where it did not write them this time (an earlier run's
 ``skipped.csv`` or ground truth in the same folder), and nothing else there (`remove_stale_outputs`).
@@ -33,6 +36,8 @@ timestamp is garbage (its first azimuth's time disagrees with its file name by m
 `RunResult.skipped`, given a prior-only pose flagged ``degenerate`` + ``unreadable`` /
 ``bad_timestamp`` (`RadarOdometer.skip`), the next sweep bridged across it, every output still
 written. ``on_error="stop"`` writes the outputs for the sweeps before it and raises `RunAborted`.
+Interrupted (Ctrl-C's `KeyboardInterrupt`, or what a caller raises for SIGTERM: `radar-odom run` raises one) during
+the odometry, the run writes the outputs so far in the same way and raises `RunInterrupted` (a `KeyboardInterrupt`).
 Errors that are not one sweep's fault always stop the run: a time gap beyond ``max_gap_s``
 (`RunAborted`, after writing the outputs so far) and a model that does not fit the radar
 (`ModelMismatchError`).
@@ -47,11 +52,21 @@ from pathlib import Path
 import numpy as np
 
 from .._progress import progress
-from ..errors import ConfigError, OutputError, RadarOdomError, RunAborted, ScanFormatError, SequenceError, StreamError
+from ..errors import (
+    ConfigError,
+    OutputError,
+    RadarOdomError,
+    RunAborted,
+    RunInterrupted,
+    ScanFormatError,
+    SequenceError,
+    StreamError,
+)
 from ..evaluation.plot import plot_trajectory
 from ..evaluation.reference import gnss_reference
 from ..evaluation.report import evaluate
 from ..io.recording import open_recording  # noqa: F401  (re-exported: its home is radar_odom.io.recording)
+from ..odometry.estimate import Trajectory
 from ..odometry.odometer import Estimate, RadarOdometer
 from ..odometry.pipeline import DEFAULT_PREFETCH, NAME_TIME_TOLERANCE_S, Throughput, iter_estimates, throughput  # noqa: F401
 
@@ -63,8 +78,9 @@ ESTIMATE_COLUMNS = (
 ON_ERROR = ("skip", "stop")
 # every file a run writes in out_dir, by name: those this run did not write are removed from there (a
 # skipped.csv or ground_truth.tum of an earlier run in the same folder read as this run's); nothing else is
+PARTIAL_FILE = "partial.txt"  # beside the outputs of a run that stopped before the end: which sweeps they hold, why
 OUTPUT_FILES = ("trajectory.tum", "trajectory.kitti", "estimates.csv", "trajectory.png", "skipped.csv",
-                "ground_truth.tum", "ground_truth.kitti")
+                "ground_truth.tum", "ground_truth.kitti", PARTIAL_FILE)
 
 
 @dataclass
@@ -204,7 +220,8 @@ def run_sequence(seq_dir, model, out_dir, *, threads=None, max_gap_s: float | No
     (RADIATE, bags; `radar_odom.io.recording.open_recording`).
 
     Raises `OutputError` when ``out_dir`` cannot be a folder, `RunAborted` (``on_error="stop"``,
-    after writing the outputs so far), and the typed errors of `read_sequence` / `RadarOdometer`.
+    after writing the outputs so far, marked partial), `RunInterrupted` (a `KeyboardInterrupt` during the
+    odometry, after the same), and the typed errors of `read_sequence` / `RadarOdometer`.
     """
     if on_error not in ON_ERROR:
         raise ConfigError(f"on_error must be one of {ON_ERROR}, got {on_error!r}")
@@ -234,11 +251,11 @@ def _run(seq, seq_dir, model, out_dir, *, threads, max_gap_s, show_progress, plo
     last_ts = None
     stream = iter_estimates(seq, odo, prefetch=prefetch, on_error=on_error)
 
-    def finish(complete: bool) -> RunResult:
+    def finish(complete: bool, sweeps: int | None = None, why: str = "") -> RunResult:
         stream.close()
         result = _write_outputs(odo, seq, seq_dir, out_dir, estimates, prev_ts, stream.skipped,
                                 stream.throughput(), plot, title, complete,
-                                reference_offsets=reference_offsets)
+                                reference_offsets=reference_offsets, sweeps=sweeps, why=why)
         if bag_out is not None:
             try:
                 result.files["bag"] = _write_bag(bag_out, seq, result)
@@ -247,21 +264,35 @@ def _run(seq, seq_dir, model, out_dir, *, threads, max_gap_s, show_progress, plo
         return result
 
     def aborted(exc, why: str = "") -> RunAborted:
-        result = finish(complete=False)
+        where = f"stopped at sweep {stream.index} of {len(seq)}{why}"
+        result = finish(complete=False, why=f"{where}: {exc}")
         return RunAborted(
-            f"{exc} [stopped at sweep {stream.index} of {len(seq)}{why}; the outputs for the "
-            f"{len(result.timestamps_us)} sweeps before it are in {out_dir}]", result, exc)
+            f"{exc} [{where}; the outputs for the {len(result.timestamps_us)} sweeps before it are in {out_dir}, "
+            f"marked partial ({PARTIAL_FILE})]", result, exc)
+
+    def interrupted(exc: BaseException, upto: tuple) -> RunInterrupted:
+        # Python raises the interrupt between any two bytecodes, in a step or in this loop's bookkeeping: the
+        # outputs are those of the sweeps ``upto`` records as done, whatever the odometer went on to append
+        handled, kept, poses = upto
+        del estimates[kept:], prev_ts[kept:]
+        where = f"interrupted at sweep {handled} of {len(seq)}"
+        result = finish(complete=False, sweeps=poses, why=where)
+        return RunInterrupted(
+            f"{where}: the outputs for the {len(result.timestamps_us)} sweeps before it are written to {out_dir}, "
+            f"marked partial ({PARTIAL_FILE}; no metrics or ground truth)", result, exc)
 
     done = 0
+    upto = (0, 0, 0)  # (sweeps of the recording handled, estimates kept, trajectory poses): one assignment a sweep
     bar = progress(total=len(seq), desc=f"odometry {Path(seq_dir).name}", unit="sweep", disable=not show_progress)
     try:
         with stream:
             try:
-                for _i, ts, est in stream:
+                for i, ts, est in stream:
                     if est is not None:
                         estimates.append(est)
                         prev_ts.append(last_ts)
                     last_ts = ts
+                    upto = (i + 1, len(estimates), upto[2] + 1)  # every sweep yielded holds one trajectory pose
                     bar.update(stream.count - done)
                     done = stream.count
             except StreamError as exc:
@@ -271,6 +302,9 @@ def _run(seq, seq_dir, model, out_dir, *, threads, max_gap_s, show_progress, plo
             except ScanFormatError as exc:  # on_error="stop": the sweep that could not be used
                 raise aborted(exc, " (on_error='stop')") from None
         bar.update(len(seq) - done)
+    except KeyboardInterrupt as exc:  # Ctrl-C (or the command line's SIGTERM): the work so far is kept
+        bar.close()
+        raise interrupted(exc, upto) from None
     finally:
         bar.close()
     if len(seq) and len(stream.skipped) >= len(seq):
@@ -278,7 +312,13 @@ def _run(seq, seq_dir, model, out_dir, *, threads, max_gap_s, show_progress, plo
         first = stream.skipped[0]
         raise SequenceError(f"{seq_dir}: none of its {len(seq)} sweeps could be used (the first, {first['path']}: "
                             f"{first['reason']}: {first['message']}); nothing to estimate")
-    return finish(complete=True)
+    try:
+        return finish(complete=True)
+    except KeyboardInterrupt as exc:  # the odometry is done, its files perhaps not all written: said, and marked
+        where = f"interrupted while writing the outputs of all {len(seq)} sweeps"
+        _mark_partial(out_dir, where, None, len(seq))
+        raise RunInterrupted(f"{where}: those in {out_dir} may be incomplete, marked partial ({PARTIAL_FILE})",
+                             None, exc) from None
 
 
 def check_bag_out(path) -> None:
@@ -308,14 +348,35 @@ def _write_bag(path, seq, result: RunResult) -> Path:
     return write_odometry_bag(path, result.timestamps_us, result.poses, result.estimates, stamps)
 
 
+def _mark_partial(out_dir, why: str, sweeps: int | None, total: int) -> Path | None:
+    """`PARTIAL_FILE` in ``out_dir``: the outputs there are of a run that stopped (``why``), holding the first
+    ``sweeps`` of the recording's ``total`` (None: not known). None where it cannot be written (the outputs are
+    the work: a marker that fails costs nothing else)."""
+    held = "" if sweeps is None else f"These outputs hold the first {sweeps} of the recording's {total} sweeps. "
+    text = (f"partial: {why}.\n{held}No metrics and no ground truth were written for them; run the recording "
+            "again for the whole of it (radar-odom run: --overwrite replaces these).\n")
+    try:
+        path = Path(out_dir) / PARTIAL_FILE
+        path.write_text(text)
+        return path
+    except OSError:
+        return None
+
+
 def _write_outputs(odo, seq, seq_dir, out_dir, estimates, prev_ts, skipped, pace: Throughput, plot, title,
-                   complete: bool, reference_offsets=(None, None)) -> RunResult:
+                   complete: bool, reference_offsets=(None, None), sweeps: int | None = None,
+                   why: str = "") -> RunResult:
     from ..evaluation.metrics import covariance_jitter
     from ..evaluation.trajectory import write_kitti, write_tum
 
     traj = odo.trajectory
+    if sweeps is not None and len(traj) > sweeps:  # an interrupted step's pose, its estimate never handed out
+        traj = Trajectory(traj.poses[:sweeps], traj.timestamps_us[:sweeps])
+    partial = None if complete else _mark_partial(out_dir, why or "the run stopped", len(traj), len(seq))
     result = RunResult(traj.poses, traj.timestamps_us, estimates, None,
                        seconds_per_step=pace.wall_s / max(len(traj), 1), skipped=list(skipped), throughput=pace)
+    if partial is not None:
+        result.files["partial"] = partial
     # the one time base of the run: the reader's, with the whole periods the match decided (the reference's too)
     result.time_base = getattr(seq, "time_base", None)
     result.files["tum"] = write_tum(out_dir / "trajectory.tum", traj.timestamps_us, traj.poses)
@@ -325,7 +386,7 @@ def _write_outputs(odo, seq, seq_dir, out_dir, estimates, prev_ts, skipped, pace
         result.files["skipped"] = write_skipped_csv(out_dir / "skipped.csv", skipped)
     gt = seq.gt_absolute()
     n = len(traj)
-    if gt is None and n == len(seq) and n >= 2:
+    if gt is None and complete and n == len(seq) and n >= 2:
         # the reference is read (a few thousand small files) and aligned only now, after the
         # odometry: whatever is wrong with it costs the metrics, never the estimates written above
         try:
@@ -346,7 +407,7 @@ def _write_outputs(odo, seq, seq_dir, out_dir, estimates, prev_ts, skipped, pace
                 gt_relative=seq.gt_relative)
         except (ValueError, ArithmeticError) as exc:  # e.g. a ground truth of 1e308 m: no metrics, say why
             result.problems.append(f"metrics not computed: {type(exc).__name__}: {exc}")
-    if gt is not None and n == len(seq) and len(gt) == n:
+    if gt is not None and complete and n == len(seq) and len(gt) == n:
         # one ground-truth pose per estimated pose, stamped like the estimate so that evo pairs
         # them by time (TUM) or by line (KITTI); unknown past the first pair without ground truth
         known = np.all(np.isfinite(gt.reshape(n, -1)), axis=1)
