@@ -3,6 +3,7 @@
     python benchmarks/do_no_harm.py                         # fresh seeds, default vs plain; ≈ 10 min on 2 cores
     python benchmarks/do_no_harm.py --seeds 123 --drives 3  # repeat a run's seeds (the generator's seed)
     python benchmarks/do_no_harm.py --json dnh.json --markdown dnh.md
+    python benchmarks/do_no_harm.py --ablations periods-from-stamps no-crossing no-crossing-deskew no-prior
 
 Fresh simulated drives (seeds ≥ 100000, drawn at every run and printed) of two kinds: ``urban`` and
 ``junctions`` (sharp junction turns, 30-90° at 3-10 m/s). Each drive's sweeps are stamped by a host clock
@@ -77,7 +78,28 @@ def run(model, config, scans):
     return ests[1:], odo.trajectory.poses, (time.perf_counter() - t0) / len(scans)
 
 
-def measure_drive(model, kind: str, seed: int, scans, rel) -> dict:
+def odometer_configs(names) -> dict:
+    """{name: `OdometerConfig`} of the configurations measured: ``default`` and ``plain`` always, and the
+    ablations asked for, each the default with one stage off (``periods-from-stamps``: the stamps count a
+    step's periods, the match does not decide; ``no-crossing``: no readings from several centres; ``no-crossing-
+    deskew``; ``no-prior``: no fusion or gate)."""
+    from dataclasses import replace as swap
+
+    from radar_odom.odometry.config import GapConfig, OdometerConfig, TimeConfig
+
+    base = OdometerConfig()
+    known = {"default": base, "plain": OdometerConfig.plain(),
+             "periods-from-stamps": swap(base, time=TimeConfig(match_decides=False)),
+             "no-crossing": swap(base, gaps=GapConfig(cross=False)),
+             "no-crossing-deskew": swap(base, gaps=GapConfig(deskew=False)),
+             "no-prior": swap(base, prior=None)}
+    unknown = sorted(set(names) - set(known))
+    if unknown:
+        raise SystemExit(f"unknown configuration(s) {unknown}; known: {', '.join(known)}")
+    return {n: known[n] for n in ["default", "plain", *[n for n in names if n not in ("default", "plain")]]}
+
+
+def measure_drive(model, kind: str, seed: int, scans, rel, configs=("default", "plain")) -> dict:
     from radar_odom.se2 import chain_relative, invert, to_xyyaw, wrap_angle
     from radar_odom.sim.host_clock import PRESETS
     from radar_odom.sim.host_stamps import timed
@@ -94,9 +116,10 @@ def measure_drive(model, kind: str, seed: int, scans, rel) -> dict:
     near_drop = np.array([np.any(steps[max(0, j - NEAR_DROP):j + NEAR_DROP + 1] > 1) for j in range(steps.size)])
     truth = np.array([to_xyyaw(invert(gt_abs[j]) @ gt_abs[j + 1]) for j in range(steps.size)])
     out = {"kind": kind, "seed": seed, "sweeps": len(scans), "kept": int(keep.size), "drops": int((steps > 1).sum())}
-    _, _, plain_speed = run(model, "plain", scans)  # no drops: the per-sweep time to compare with
-    for name in ("default", "plain"):
-        config = None if name == "default" else "plain"
+    from radar_odom.odometry.config import OdometerConfig
+
+    _, _, plain_speed = run(model, OdometerConfig.plain(), scans)  # no drops: the per-sweep time to compare with
+    for name, config in odometer_configs(configs).items():
         e_host, p_host, t_host = run(model, config, host)
         e_true, _, _ = run(model, config, kept)
         d_host = np.array([e.pose for e in e_host])
@@ -181,11 +204,20 @@ def verdict(row: str, default, plain) -> str:
 
 
 def table(drives) -> str:
-    d, p = rows(drives, "default"), rows(drives, "plain")
-    lines = ["| row | default | plain | verdict |", "|---|---:|---:|---|"]
-    for row in d:
+    """The default against plain (with the verdict), then each ablation's column (its verdict against the
+    default: ``worse`` where switching that stage off makes the row worse, i.e. the stage earns its place)."""
+    names = [n for n in drives[0] if isinstance(drives[0][n], dict) and "kitti_t" in drives[0][n]]
+    extra = [n for n in names if n not in ("default", "plain")]
+    r = {n: rows(drives, n) for n in names}
+    head = "| row | default | plain | verdict |" + "".join(f" {n} | vs default |" for n in extra)
+    lines = [head, "|---|---:|---:|---|" + "---:|---|" * len(extra)]
+    for row in r["default"]:
         fmt = "{:.0f} ({:.0f})" if "count" in row else "{:.3f} ± {:.3f}"
-        lines.append(f"| {row} | {fmt.format(*d[row])} | {fmt.format(*p[row])} | {verdict(row, d[row], p[row])} |")
+        cells = [fmt.format(*r["default"][row]), fmt.format(*r["plain"][row]), verdict(row, r["default"][row],
+                                                                                       r["plain"][row])]
+        for n in extra:
+            cells += [fmt.format(*r[n][row]), verdict(row, r[n][row], r["default"][row])]
+        lines.append(f"| {row} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -197,6 +229,9 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=100, help="sweeps per drive (default 100)")
     ap.add_argument("--model", default="cart-0.4", help="shipped model name or .onnx path")
     ap.add_argument("--jobs", type=int, default=2, help="simulation and measurement processes")
+    ap.add_argument("--ablations", nargs="*", default=[], metavar="NAME",
+                    help="also the default with one stage off: periods-from-stamps, no-crossing, no-crossing-deskew, "
+                         "no-prior (each a column, judged against the default)")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--markdown", type=Path, default=None)
     args = ap.parse_args(argv)
@@ -212,7 +247,7 @@ def main(argv=None) -> int:
     print(f"seed generator {gen}; drives {[(j[2], j[0]) for j in jobs]}; model {args.model}", flush=True)
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        drives = list(pool.map(_measure_job, [(model, j) for j in jobs]))
+        drives = list(pool.map(_measure_job, [(model, j, tuple(args.ablations)) for j in jobs]))
     print(f"measured in {time.perf_counter() - t0:.0f} s", flush=True)
     text = table(drives)
     print(text)
@@ -224,9 +259,9 @@ def main(argv=None) -> int:
 
 
 def _measure_job(arg):
-    model, (seed, frames, kind) = arg
+    model, (seed, frames, kind), ablations = arg
     scans, rel = simulate((seed, frames, kind))
-    return measure_drive(model, kind, seed, scans, rel)
+    return measure_drive(model, kind, seed, scans, rel, ("default", "plain", *ablations))
 
 
 if __name__ == "__main__":
