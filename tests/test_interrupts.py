@@ -1,9 +1,12 @@
 """Ctrl-C and SIGTERM keep the work (issue 51, item 2): `radar-odom run` interrupted mid-recording writes the
 outputs so far, marked partial as ``--on-error stop`` marks them (partial.txt), says at which sweep in one line and
-exits 130 (SIGINT) / 143 (SIGTERM).
+exits 130 (SIGINT) / 143 (SIGTERM); fleet, train and adapt keep what they had done for the same command again.
 
 `run` is interrupted for real: a subprocess whose steps are slowed and announced, signalled mid-recording (SIGINT
-to its process group, as a terminal's Ctrl-C; SIGTERM to the process, as a service manager)."""
+to its process group, as a terminal's Ctrl-C; SIGTERM to the process, as a service manager). fleet (a local Ray
+takes ~10 s to start here), train and adapt are interrupted in this process by a real signal sent to it at a known
+point of their work (`os.kill`), through the command line's own handling (`radar_odom.commands.cli.main`)."""
+import csv
 import os
 import re
 import signal
@@ -187,8 +190,178 @@ def test_sigterm_raises_terminated_within_a_command_and_the_old_handler_comes_ba
     assert interrupted_line("fleet", KeyboardInterrupt()) == "radar-odom fleet: interrupted (SIGINT)"
 
 
+def test_a_local_ray_keeps_the_command_lines_sigterm_handler():
+    """ray.init on the main thread sets SIGTERM to sys.exit(15): fleet under SIGTERM then ended with status 15
+    and no line. The command line's handler is put back; without one, Ray's stays as before."""
+    import types
+
+    from radar_odom.fleet.scheduler import connect_ray
+
+    def ray_exit(signum, frame):  # what ray.init installs
+        sys.exit(signum)
+
+    fake = types.SimpleNamespace(init=lambda **kwargs: signal.signal(signal.SIGTERM, ray_exit))
+    old = signal.getsignal(signal.SIGTERM)
+    try:
+        with sigterm_interrupts():
+            ours = signal.getsignal(signal.SIGTERM)
+            connect_ray(fake, None)
+            assert signal.getsignal(signal.SIGTERM) is ours
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        connect_ray(fake, None)
+        assert signal.getsignal(signal.SIGTERM) is ray_exit
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+@pytest.fixture(autouse=True)
+def python_ctrl_c():
+    """Python's own Ctrl-C handler for the in-process signals: a process started in the background by a
+    non-interactive shell (a CI script) inherits SIGINT ignored, and then no KeyboardInterrupt comes."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
 def _signal_self(sig):
     """A real signal to this process, mid-work: POSIX delivers it to this thread before `os.kill` returns, so the
     handler raises at once; the sleep only bounds the wait if it did not."""
     os.kill(os.getpid(), sig)
     time.sleep(1.0)
+
+
+# ------------------------------------------------------------------ fleet
+@pytest.mark.skipif(__import__("importlib").util.find_spec("ray") is None, reason="needs ray (the fleet extra)")
+@pytest.mark.parametrize("name", sorted(SIGNALS))
+def test_an_interrupted_fleet_keeps_the_recordings_done_and_the_same_command_runs_the_rest(
+        recording, cli_model, tmp_path, monkeypatch, capsys, name):
+    """Ray's own start is ~10 s here: the recordings run one after the other in this process instead (the job
+    each Ray worker runs, `process_recording`), and the signal comes after the first is published."""
+    import shutil
+
+    from radar_odom.fleet import scheduler
+    from radar_odom.fleet.job import process_recording
+    from radar_odom.fleet.manifest import MANIFEST
+    from radar_odom.fleet.report import DONE, KEPT
+
+    sig, status = SIGNALS[name]
+    recs = [tmp_path / "van1", tmp_path / "van2"]
+    for r in recs:
+        shutil.copytree(recording, r)
+    interrupt = [True]
+
+    def one_by_one(run, pending, recordings, names, keys, out_dir, model_path, options, *rest):
+        out_dir.mkdir(parents=True, exist_ok=True)
+        for i in pending:
+            run.rows[i] = {**process_recording(model_path, recordings[i], out_dir, names[i], options, keys[i]),
+                           "attempts": 1}
+            if interrupt[0]:
+                _signal_self(sig)
+
+    monkeypatch.setattr(scheduler, "_run_on_ray", one_by_one)
+    out = tmp_path / "out"
+    argv = ["fleet", *map(str, recs), "-o", str(out), "--model", str(cli_model), "--no-plot", "--no-progress"]
+    assert main(argv) == status
+    line = _one_line(capsys.readouterr().err, "fleet")
+    assert line == (f"radar-odom fleet: interrupted ({name}); 1 of 2 recordings are done and kept in {out} (each "
+                    "written whole); the same command again runs only the others and writes the report")
+    assert (out / "van1" / MANIFEST).is_file() and not (out / "van2").exists()
+    assert not [p for p in out.iterdir() if p.name.startswith(".van")]  # no half-written folder left
+    interrupt[0] = False
+    assert main(argv) == 0
+    with open(out / "fleet.csv", newline="") as f:
+        status_of = {r["recording"]: r["status"] for r in csv.DictReader(f)}
+    assert status_of == {"van1": KEPT, "van2": DONE}
+
+
+# ------------------------------------------------------------------ train and adapt
+@pytest.fixture
+def train_data(tmp_path, monkeypatch):
+    pytest.importorskip("torch")
+    import json
+    from dataclasses import asdict
+
+    from radar_odom.profiles import GridProfile
+    from radar_odom.sim import SimConfig, write_drive
+
+    monkeypatch.setenv("RADAR_ODOM_CACHE", str(tmp_path / "cache"))
+    cfg = SimConfig().with_sensor(num_bins=800)  # 35 m of range: small files, fast
+    recs = [write_drive(tmp_path / f"seq{s}", seed=s, frames=5, config=cfg, progress=False) for s in (41, 42)]
+    tiny = GridProfile("tiny", resolution_m=1.6, width_px=64, max_translation_m=4, rotation_range_rad=0.05,
+                       rotation_step_rad=0.025, unet_base_channels=4, unet_depth=3)
+    prof = tmp_path / "tiny.json"
+    prof.write_text(json.dumps(asdict(tiny)))
+    return recs, prof
+
+
+@pytest.mark.torch
+@pytest.mark.parametrize("name", sorted(SIGNALS))
+def test_an_interrupted_train_resumes_from_its_last_saved_epoch(train_data, tmp_path, monkeypatch, capsys, name):
+    import json
+
+    from radar_odom_export import train as train_mod
+
+    sig, status = SIGNALS[name]
+    recs, prof = train_data
+    out = tmp_path / "m.pt"
+    argv = ["train", *map(str, recs), "-o", str(out), "--profile", str(prof), "--epochs", "3", "--batch", "2",
+            "--threads", "1", "--minutes", "0"]
+    save, interrupt = train_mod._save_state, [True]
+
+    def saved_then_signalled(cfg, model, optim, epoch, *args):
+        save(cfg, model, optim, epoch, *args)
+        if interrupt[0] and epoch == 1:  # mid-run: epoch 1 saved, two to go
+            _signal_self(sig)
+
+    monkeypatch.setattr(train_mod, "_save_state", saved_then_signalled)
+    assert main(argv) == status
+    line = _one_line(capsys.readouterr().err, "train")
+    assert line == (f"radar-odom train: interrupted ({name}); m.state.pt holds epoch 1: the same command with "
+                    "--resume continues from there; the steps since are lost")
+    interrupt[0] = False
+    assert main([*argv, "--resume"]) == 0
+    epochs = json.loads(train_mod.log_path(out).read_text())["epochs"]
+    assert [e["epoch"] for e in epochs] == [1, 2, 3]
+
+
+@pytest.mark.torch
+def test_an_interrupted_adapt_says_whether_resume_can_continue(tmp_path, monkeypatch, capsys, recording):
+    """adapt's interruptible work is its training (`train`, above, saves each epoch for --resume); what adapt
+    adds is the line: --resume where its training saved an epoch, starting over where none had ended."""
+    torch = pytest.importorskip("torch")
+    from radar_odom_export import adapt as adapt_mod
+    from radar_odom_export.train import STATE_FORMAT, STATE_KEYS, state_path
+
+    out = tmp_path / "mine.onnx"
+    saves = []
+
+    def signalled(recordings, output, cfg, **kwargs):
+        for state in saves:  # what an epoch of its training writes
+            torch.save({"format": STATE_FORMAT, **dict.fromkeys(STATE_KEYS, 0), "epoch": 2}, state_path(state))
+        _signal_self(signal.SIGTERM)
+
+    monkeypatch.setattr(adapt_mod, "adapt", signalled)
+    argv = ["adapt", str(recording), "-o", str(out)]
+    assert main(argv) == SIGTERM_STATUS
+    assert _one_line(capsys.readouterr().err, "adapt") == (
+        "radar-odom adapt: interrupted (SIGTERM); no epoch had ended, so nothing is saved to resume: the same "
+        "command again starts over")
+    saves.append(out.with_suffix(".pt"))
+    assert main(argv) == SIGTERM_STATUS
+    assert _one_line(capsys.readouterr().err, "adapt") == (
+        "radar-odom adapt: interrupted (SIGTERM); mine.state.pt holds epoch 2: the same command with --resume "
+        "continues from there (the recordings are read and labelled again first); the steps since are lost")
+
+
+def test_build_drives_workers_leave_ctrl_c_to_the_parent():
+    """A terminal's Ctrl-C reaches train's simulation workers too: each printed its own KeyboardInterrupt
+    traceback. They ignore it; the parent stops the pool."""
+    pytest.importorskip("torch")
+    from radar_odom_export import data
+
+    old = signal.getsignal(signal.SIGINT)
+    try:
+        data._ignore_ctrl_c()
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGINT, old)

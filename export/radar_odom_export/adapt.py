@@ -403,6 +403,15 @@ def adapt(recordings, output, cfg: AdaptConfig, topic: str | None = None, sweeps
     gives every recording's (poses, relative poses) at once (`adapt_labels.ray_labeller`: Ray workers).
     ``dist`` (`train.Dist`, under torchrun): every rank trains on its shard; only rank 0 exports, scores and
     writes; the other ranks return None."""
+    workdir = Path(tempfile.mkdtemp(prefix="radar-odom-adapt-"))  # the base's and candidates' files, never kept
+    try:
+        return _adapt(recordings, output, cfg, topic, sweeps, labeller, dist, workdir)
+    finally:  # done, failed or interrupted (Ctrl-C, SIGTERM): what is worth keeping was moved out already
+        shutil.rmtree(workdir, ignore_errors=True)
+
+
+def _adapt(recordings, output, cfg: AdaptConfig, topic, sweeps: slice, labeller, dist, workdir: Path) -> dict | None:
+    """`adapt`'s work, its temporary files in ``workdir`` (removed by `adapt`)."""
     import torch
 
     from .checkpoint import read_checkpoint_dict, write_checkpoint_dict
@@ -418,7 +427,6 @@ def adapt(recordings, output, cfg: AdaptConfig, topic: str | None = None, sweeps
     report_path = output.with_suffix(".adapt.json")
     check_seed_policy(cfg.sim_seeds, "train")
     threads = cfg.threads or max(1, (os.cpu_count() or 1) // d.world)
-    workdir = Path(tempfile.mkdtemp(prefix="radar-odom-adapt-"))
     base_ckpt, base_onnx, export_how = base_files(cfg.base, workdir)
     base = read_checkpoint_dict(base_ckpt)
     from radar_odom.profiles import GridProfile
@@ -456,7 +464,6 @@ def adapt(recordings, output, cfg: AdaptConfig, topic: str | None = None, sweeps
     )
     summary = train(tcfg, sim, held, d, real_drives=drives)
     if not d.main:  # rank 0 alone exports, scores and writes
-        shutil.rmtree(workdir, ignore_errors=True)
         return None
     # the checkpoint keeps the base's covariance calibration (its profile): no reference to recalibrate on
     ckpt = read_checkpoint_dict(ckpt_out)

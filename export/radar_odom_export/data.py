@@ -257,6 +257,14 @@ def _build_one(job) -> tuple[int, float]:
     return idx, time.perf_counter() - t0
 
 
+def _ignore_ctrl_c() -> None:
+    """Pool worker start: Ctrl-C, which a terminal sends to every process of the command, is the parent's to
+    handle (it stops the pool, whose workers then end); without this each worker printed its own traceback."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def build_drives(
     profile: GridProfile,
     specs: Sequence[DriveSpec],
@@ -277,7 +285,7 @@ def build_drives(
         if workers > 1 and len(todo) > 1:
             import multiprocessing as mp
 
-            with mp.get_context("spawn").Pool(min(workers, len(todo))) as pool:
+            with mp.get_context("spawn").Pool(min(workers, len(todo)), initializer=_ignore_ctrl_c) as pool:
                 for _ in pool.imap_unordered(_build_one, todo):
                     bar.update(1)
         else:

@@ -63,13 +63,23 @@ def register(subparsers) -> None:
                    help="label on this running Ray cluster (implies --ray); its nodes must see the recordings")
     p.add_argument("--resume", action="store_true", help="continue an interrupted run writing the same OUTPUT")
     p.add_argument("--force", action="store_true", help="overwrite OUTPUT if it exists")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, interrupted=interrupted)
+
+
+def interrupted(args, exc) -> str:
+    """What `radar-odom adapt` adds to its interrupted line: its training's last saved epoch, for --resume."""
+    from pathlib import Path
+
+    from .train import saved_epoch_hint
+
+    return saved_epoch_hint(args, Path(args.output).with_suffix(".pt"), "adapt")
 
 
 def run(args) -> int:
     from pathlib import Path
 
     from ..errors import MissingExtraError, OutputError
+    from .train import note_state
 
     try:
         import torch  # noqa: F401
@@ -79,6 +89,7 @@ def run(args) -> int:
     except ImportError as exc:
         raise MissingExtraError(getattr(exc, "name", None) or "torch", "export") from exc
     out = Path(args.output)
+    note_state(args, out.with_suffix(".pt"))  # an interrupt's line tells this run's saved epoch from an earlier run's
     if out.exists() and not (args.force or args.resume):
         raise OutputError(f"{out} exists; pass --force to overwrite it, or -o to write elsewhere")
     cfg = AdaptConfig(base=args.base, minutes=args.minutes, epochs=args.epochs, lr=args.lr,

@@ -16,7 +16,8 @@ DESCRIPTION = HELP + (
 )
 EPILOG = ("exit status: 0 every recording done with every sweep; 3 all done but some sweeps were skipped "
           "(see skipped_sweeps in fleet.csv); 1 a recording failed (its reason in fleet.csv and on stderr) "
-          "or an error stopped the fleet")
+          "or an error stopped the fleet; 130 Ctrl-C, 143 SIGTERM: the recordings done so far are kept, the same "
+          "command again runs the others")
 EXIT_OK, EXIT_ERROR, EXIT_SKIPPED = 0, 1, 3
 
 
@@ -40,7 +41,21 @@ def register(subparsers) -> None:
                         "recordings at once")
     p.add_argument("--no-progress", action="store_true", help="no progress line")
     register_recording_options(p)
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, interrupted=interrupted)
+
+
+def interrupted(args, exc) -> str:
+    """What `radar-odom fleet` adds to its interrupted line: the recordings done so far (each published whole, with
+    its manifest) stay, and the same command again runs only the others."""
+    from pathlib import Path
+
+    from ..fleet.manifest import MANIFEST, recording_names
+
+    out = Path(args.output)
+    names = recording_names([str(r) for r in args.recordings])
+    done = sum((out / name / MANIFEST).is_file() for name in names)
+    return (f"{done} of {len(names)} recordings are done and kept in {out} (each written whole); the same command "
+            "again runs only the others and writes the report")
 
 
 def run(args) -> int:

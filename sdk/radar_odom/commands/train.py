@@ -18,7 +18,8 @@ in --sim-seeds (training) and --val-seeds (validation). Simulated drives are con
 and cached under $RADAR_ODOM_CACHE (default ~/.cache/radar-odom).
 
 Stops at --minutes (default 20, announced with its end time when the command starts) or
---epochs, whichever comes first; `--resume` with the same arguments continues. Writes OUTPUT
+--epochs, whichever comes first; `--resume` with the same arguments continues (so it does after
+Ctrl-C or SIGTERM, from the last epoch that ended: the line it ends with says which). Writes OUTPUT
 (the best checkpoint by validation pose error), OUTPUT.state.pt (for --resume), OUTPUT.log.json
 and OUTPUT.loss.png; the last line gives the best epoch's validation pose error (grid cells²)
 and its validation loss (the trained objective) apart. `radar-odom export OUTPUT` then
@@ -167,7 +168,43 @@ def register(subparsers) -> None:
     g.add_argument("--distill-pose-weight", type=float, default=0.0, metavar="W",
                    help="with --distill-from: add W × the pose cross-entropy of the student's correlation volume "
                         "to the mask loss (default: %(default)s, masks alone)")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, interrupted=lambda args, exc: saved_epoch_hint(args, args.output, "train"))
+
+
+def saved_epoch_hint(args, checkpoint, command: str) -> str:
+    """What an interrupted `train` (or `adapt`, whose training writes ``checkpoint``) leaves to resume from: the
+    state of the last epoch that ended (``CHECKPOINT.state.pt``, written whole at each epoch's end) and how to go on;
+    the steps since that epoch ended are lost. A state this command did not write (the one `note_state` saw at its
+    start, unchanged) is an earlier run's, unless this one resumed it."""
+    from pathlib import Path
+
+    from radar_odom_export.train import read_resume_state, state_path
+
+    state = state_path(checkpoint)
+    ours = state.is_file() and (getattr(args, "resume", False) or _stamp(state) != getattr(args, "state_seen", None))
+    if not ours:
+        cached = " (the drives built so far are cached)" if command == "train" else ""
+        return f"no epoch had ended, so nothing is saved to resume: the same command again starts over{cached}"
+    which = f"epoch {int(read_resume_state(checkpoint)['epoch'])}"  # written whole (os.replace): never half an epoch
+    again = "the same command with --resume continues from there" + (
+        " (the recordings are read and labelled again first)" if command == "adapt" else "")
+    return f"{Path(state).name} holds {which}: {again}; the steps since are lost"
+
+
+def note_state(args, checkpoint) -> None:
+    """Remember the resume state beside ``checkpoint`` as this command found it (`saved_epoch_hint`)."""
+    from radar_odom_export.train import state_path
+
+    args.state_seen = _stamp(state_path(checkpoint))
+
+
+def _stamp(path):
+    """(mtime ns, size) of ``path``, or None where there is none."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return st.st_mtime_ns, st.st_size
 
 
 def run(args) -> int:
@@ -179,5 +216,6 @@ def run(args) -> int:
         raise MissingExtraError("torch", "export") from exc
     from radar_odom_export.train import run_from_args
 
+    note_state(args, args.output)  # an interrupt's line tells this run's saved epoch from an earlier run's
     run_from_args(args)
     return 0

@@ -81,10 +81,11 @@ def connect_ray(ray, address: str | None, timeout_s: float = RAY_CONNECT_TIMEOUT
 
     address = check_ray_address(address)
     if address is None:  # "local": a new Ray even where a cluster runs on this machine (None would join that one)
-        try:
-            ray.init(address="local", **init_kwargs)
-        except Exception as exc:  # noqa: BLE001 - Ray's own errors, one line each
-            raise ClusterError(f"cannot start a local Ray on this machine ({one_line(exc)})") from None
+        with _sigterm_kept():
+            try:
+                ray.init(address="local", **init_kwargs)
+            except Exception as exc:  # noqa: BLE001 - Ray's own errors, one line each
+                raise ClusterError(f"cannot start a local Ray on this machine ({one_line(exc)})") from None
         return
     deadline = time.monotonic() + timeout_s  # the probe and the join share the one timeout
     if address != "auto":
@@ -121,6 +122,23 @@ class _DropSigtermNotice:
     @staticmethod
     def filter(record) -> bool:
         return "SIGTERM handler is not set" not in record.getMessage()
+
+
+@contextmanager
+def _sigterm_kept():
+    """``ray.init`` on the main thread sets SIGTERM to ``sys.exit(15)``: a handler the caller had set before (the
+    command line's, which unwinds as Ctrl-C does and says so in one line: commands/interrupts.py) is put back after.
+    Where none was set (the default), Ray's stays, as before."""
+    import signal
+    import threading
+
+    main = threading.current_thread() is threading.main_thread()
+    before = signal.getsignal(signal.SIGTERM) if main else None
+    try:
+        yield
+    finally:
+        if callable(before) and signal.getsignal(signal.SIGTERM) is not before:
+            signal.signal(signal.SIGTERM, before)
 
 
 def _exit_on_sigterm() -> None:
