@@ -145,6 +145,8 @@ def test_real_drive_runs_to_the_end_with_its_late_stamps_put_back_against_the_al
     assert r.complete and r.num_degenerate == 0 and np.all(np.diff(r.timestamps_us) > 0)
     # the late stamps put back on the sensor's period, said on stderr: no interval is a gap any more
     assert f"{LATE_STAMPS} sweep stamps were late (up to 264 ms, in 3 runs" in run.stderr, run.stderr
+    # one late-stamp count per run (issue 50: a run printed 138 and 142, the reader's and the match's)
+    assert set(re.findall(r"(\d+) sweep stamps were late", run.printed + run.stderr)) == {str(LATE_STAMPS)}
     dts = np.diff(r.timestamps_us) / 1e6
     gaps = [i for i, e in enumerate(r.estimates) if GAP in e.flags]
     assert gaps == [] and 0.249 < dts.min() and dts.max() < 0.251  # every interval one period, jitter gone
