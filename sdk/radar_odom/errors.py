@@ -61,6 +61,23 @@ class ModelNotFoundError(RadarOdomError, FileNotFoundError):
     """A model path that does not exist (a FileNotFoundError that is also a `RadarOdomError`)."""
 
 
+class ModelDigestError(InvalidModelError):
+    """A registered model file (`radar_odom.pretrained`, the model registry) whose SHA-256 is not the one its
+    registry records: damaged or replaced since it was installed or added. The message names the file, the
+    expected and the found digest and what to do (reinstall radar-odom, or add the local model again)."""
+
+    def __init__(self, message: str, path=None, expected: str | None = None, found: str | None = None):
+        super().__init__(message)
+        self.path = path
+        self.expected = expected
+        self.found = found
+
+
+class RegistryError(RadarOdomError, ValueError):
+    """A model registry file (``registry.json``: the shipped one or ``$RADAR_ODOM_HOME/models/registry.json``)
+    that cannot be read or holds a malformed entry; the message names the file and the entry."""
+
+
 class ConfigError(RadarOdomError, ValueError):
     """An argument value the SDK cannot work with (NaN, out of range, unknown choice)."""
 
