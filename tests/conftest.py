@@ -14,8 +14,11 @@ skipped for want of torch then fails, unless it is marked ``torch`` or its whole
 export-side (skipped at import by a module-level ``pytest.importorskip("torch")``). A runtime
 test that needs a model takes a committed fixture instead of exporting one.
 """
+import atexit
 import importlib.util
 import os
+import shutil
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -24,6 +27,12 @@ REAL_DATA_ENV = "RADAR_ODOM_REAL_DATA"
 DEFAULT_REAL_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
 TORCHLESS_ENV = "RADAR_ODOM_REQUIRE_TORCHLESS"
 FIXTURE_DIR = Path(__file__).resolve().parent / "fixtures"
+
+# the model registry's local folder (radar_odom.model_registry: $RADAR_ODOM_HOME/models, default ~/.radar-odom):
+# an empty one of this process's own, so that a tester's own registered models never enter the suite's
+# pretrained_names(); tests of the local registry point RADAR_ODOM_HOME at their tmp_path
+os.environ["RADAR_ODOM_HOME"] = tempfile.mkdtemp(prefix="radar-odom-home-")
+atexit.register(shutil.rmtree, os.environ["RADAR_ODOM_HOME"], True)
 
 # runtime test files that still export their model with torch; the torch-free job reports their
 # skips but does not fail on them. Empty this as each one moves to a committed fixture.

@@ -14,6 +14,7 @@ COMMANDS: list[str] = [
     "fleet",
     "simulate",
     "profile",
+    "models",
 ]
 
 
