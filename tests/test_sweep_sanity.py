@@ -191,3 +191,21 @@ def test_a_bag_read_with_implausible_range_bins_is_refused_in_one_line(option, v
     assert "Traceback" not in err and len(errors) == 1, err
     assert errors[0].startswith("radar-odom run: error: ") and said in errors[0] and "--range-" in errors[0]
     assert not out.exists()
+
+
+def test_a_sweep_whose_row_times_span_an_hour_is_refused():
+    """Issue 51: a 1 h timestamp jump within one sweep was taken as a sweep (and `--sweep-period-s 10` as a bag's
+    turn): a spinning radar turns in under 5 s, so both are refused in one typed line."""
+    from radar_odom.errors import ConfigError, ScanFormatError
+    from radar_odom.ros.msgs import PolarImageGeometry
+    from radar_odom.scan import RadarScan
+
+    rows = 400
+    times = 1_547_131_050_000_000 + np.arange(rows) * 625
+    times[200:] += 3_600_000_000  # an hour later, halfway round
+    az = np.arange(rows) * 2 * np.pi / rows
+    with pytest.raises(ScanFormatError, match="span 3.6e\\+03 s within one sweep"):
+        RadarScan.from_arrays(times, az, np.zeros((rows, 64), np.float32))
+    RadarScan.from_arrays(times[:200], az[:200], np.zeros((200, 64), np.float32))  # a quarter second is a sweep
+    with pytest.raises(ConfigError, match="turns in under 5 s"):
+        PolarImageGeometry(range_resolution_m=0.0432, sweep_period_s=10.0, stamp="last")

@@ -16,6 +16,9 @@ from .errors import ScanFormatError
 OXFORD_RANGE_RESOLUTION_M = 0.0432
 OXFORD_ENCODER_SIZE = 5600
 _INT64_LIMIT = float(2**63)
+# a spinning radar's turn: longer row-time spans within one sweep are a corrupt header or wrong unit (issue 51: a 1 h
+# jump inside one sweep was taken as a sweep)
+MAX_SWEEP_SPAN_US = 5_000_000
 
 
 def _finite_float(value, name: str, where: str) -> float:
@@ -168,6 +171,12 @@ class RadarScan:
         elif ts.dtype.kind == "u" and ts.size and int(ts.max()) > np.iinfo(np.int64).max:
             raise ScanFormatError(f"{where}timestamps_us holds {int(ts.max())}, beyond the int64 range")
         ts = ts.astype(np.int64)
+        tv = ts[valid] if valid.shape == ts.shape else ts  # invalid rows carry garbage headers (Oxford: 0)
+        if tv.size and int(tv.max()) - int(tv.min()) > MAX_SWEEP_SPAN_US:
+            raise ScanFormatError(
+                f"{where}timestamps_us span {(int(tv.max()) - int(tv.min())) / 1e6:.3g} s within one sweep; a spinning "
+                f"radar turns in under {MAX_SWEEP_SPAN_US / 1e6:g} s (a Navtech in 0.25 s): the row times are corrupt "
+                "or in the wrong unit (give µs)")
         if not np.all(np.isfinite(az)):
             raise ScanFormatError(f"{where}azimuths_rad holds NaN/inf")
         az = az.astype(np.float32)

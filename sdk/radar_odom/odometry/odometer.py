@@ -30,8 +30,7 @@ convention, `radar_odom.se2`) with its 3×3 covariance over (x, y, yaw). A step 
   (``"gated"``; after two, the next is taken: ``"prior_reset"``). ``Estimate.measurement`` keeps the match.
 
 Every setting is one `OdometerConfig` (`radar_odom.odometry.config`); the plain mode is
-``OdometerConfig.plain()``. Threads: `step`, `skip`, `reset` and `trajectory` hold one lock each, so one
-odometer fed from several threads never interleaves the inside of two steps; use one odometer per stream.
+``OdometerConfig.plain()``.
 """
 from __future__ import annotations
 
@@ -112,6 +111,9 @@ class RadarOdometer:
     Raises `ConfigError` (a ValueError) for an option it cannot use (de-skew or yaw centring with a model that
     draws its sweeps itself included); `InvalidModelError` for a corrupt model file or metadata;
     `ModelMismatchError` for a sequence-form file (`radar_odom.match_sequence` takes it).
+
+    Threads: `step`, `skip`, `reset` and `trajectory` are serialised by a lock held for the whole call, so one
+    odometer fed from several threads never interleaves the inside of two steps; use one odometer per stream.
     """
 
     def __init__(self, model, threads: int | None = None, providers=None, *, config: OdometerConfig | str | None = None,

@@ -38,7 +38,7 @@ import numpy as np
 
 from ..errors import ConfigError, ScanFormatError
 from ..io._layout import IHDR_BYTES, PNG_SIGNATURE, read_png_header
-from ..scan import OXFORD_ENCODER_SIZE, OXFORD_RANGE_RESOLUTION_M, RadarScan
+from ..scan import MAX_SWEEP_SPAN_US, OXFORD_ENCODER_SIZE, OXFORD_RANGE_RESOLUTION_M, RadarScan
 
 IMAGE_MSGTYPE = "sensor_msgs/msg/Image"
 COMPRESSED_IMAGE_MSGTYPE = "sensor_msgs/msg/CompressedImage"
@@ -102,6 +102,9 @@ class PolarImageGeometry:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ConfigError(f"{name} must be a number > 0, got {v!r}")
+        if self.sweep_period_s > MAX_SWEEP_SPAN_US / 1e6:  # issue 51: --sweep-period-s 10 was taken
+            raise ConfigError(f"sweep_period_s {self.sweep_period_s:g} s: a spinning radar turns in under "
+                              f"{MAX_SWEEP_SPAN_US / 1e6:g} s (a Navtech in 0.25 s); give one turn's time in seconds")
         for name in ("range_offset_m", "azimuth_offset_rad"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v)):
