@@ -49,7 +49,12 @@ UNCERTAIN = "uncertain"
 # Where the stamps say sweeps were dropped, a readable match overrules them only within χ²₃ at 95 % of one
 # period of motion a sweep (the motion prior's gate, 99.9 %, let a wrong peak 0.8 m short of a 1.5 m step
 # read a 7-period gap as no gap: a 6-sweep crossing of a 13° bend, seed 10000 of tests/test_deskew_gaps.py)
-NOTHING_DROPPED_D2 = 7.81  # a crossing no single readable match confirmed: its covariance covers the gap's prior
+NOTHING_DROPPED_D2 = 7.81
+# A plain match confirms a crossing only from the inner part of its window (this fraction of the half-width and
+# of the yaw range): a peak near the window's edge is pulled inward, toward the centre it was drawn at
+# (docs/yaw-precision.md), and one read there agreed with the centred match on a 4-sweep crossing 0.86 m short
+# (fresh junction drive 349864205, benchmarks/do_no_harm.py): such a crossing is flagged uncertain instead
+CONFIRM_FRACTION = 0.6  # a crossing no single readable match confirmed: its covariance covers the gap's prior
 
 
 @dataclass
@@ -132,7 +137,8 @@ class MatchStage:
         if not by_stamps:
             return Match(pose, cov, new_ref, turn, k_stamp)
         plain = (pose, cov) if readable else None
-        return self.cross_gap(scan, twist, ref, k_stamp, lead_s, new_ref, recent_yaw_rates, plain)
+        inner = readable and self.readable(residual, cov, CONFIRM_FRACTION)
+        return self.cross_gap(scan, twist, ref, k_stamp, lead_s, new_ref, recent_yaw_rates, plain, inner)
 
     def readable(self, residual, cov, fraction: float = gaps.EDGE_FRACTION) -> bool:
         """Whether a match's residual (radar frame, in the window it was drawn in) lies within ``fraction``
@@ -162,10 +168,11 @@ class MatchStage:
         return turn_frame(*uncentre(*moved, a_ref, 0.0), self.mount_yaw_rad)
 
     def cross_gap(self, scan, twist, ref, periods: int, lead_s: float, new_ref, recent_yaw_rates=(),
-                  plain=None) -> Match:
+                  plain=None, plain_inner: bool = False) -> Match:
         """The `Match` of a step the stamps put ``periods`` periods after the reference and the plain match did
         not read as consecutive (steps 1-3 of the module docstring); ``new_ref``: the new sweep in its own frame
-        (the plain match's); ``plain``: (pose, cov) of the plain match where it was readable, else None.
+        (the plain match's); ``plain``: (pose, cov) of the plain match where it was readable, else None;
+        ``plain_inner``: it lies within `CONFIRM_FRACTION` of its window (it may confirm the centred match).
 
         Confident (flagged ``gap`` only) where the match centred on the prediction and the plain match read the
         same motion from two window placements, a car could drive it and the gap's prior allows it. Otherwise,
@@ -182,7 +189,8 @@ class MatchStage:
 
         centred = self.centred(scan, twist, pred[0], ref)
         tol_m, tol_rad, _ = gaps.agreement(self.profile)
-        if plausible(centred) and plain is not None and gaps.poses_agree(centred[0], plain[0], tol_m, tol_rad):
+        if (plausible(centred) and plain is not None and plain_inner
+                and gaps.poses_agree(centred[0], plain[0], tol_m, tol_rad)):
             return Match(centred[0], centred[1], new_ref, 0.0, periods, frozenset({gaps.GAP}))
         uncertain = frozenset({gaps.GAP, UNCERTAIN})
         if plausible(centred):  # found again where it was found: a peak, not the window's centre (two calls)
