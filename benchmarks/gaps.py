@@ -151,13 +151,13 @@ def _spread(items: list[int], count: int) -> list[int]:
     return [items[int(i)] for i in np.linspace(0, len(items) - 1, count).round()]
 
 
-def cross(model: str, c: Crossing, deskew_gaps: bool = True) -> dict:
-    """Run the odometer (defaults; ``deskew_gaps`` False: the crossing drawn as recorded, as before
-    it was de-skewed) through one crossing; its error and flags."""
+def cross(model: str, c: Crossing, default: bool = True) -> dict:
+    """Run the odometer (its defaults; ``default`` False: plain matching, `OdometerConfig.plain`) through one
+    crossing; its error and flags."""
     from radar_odom import RadarOdometer
     from radar_odom.se2 import wrap_angle
 
-    odo = RadarOdometer(model, deskew_gaps=deskew_gaps)
+    odo = RadarOdometer(model, config=None if default else "plain")
     est = [odo.step(s) for s in c.scans]
     gap_est = [e for e in est if e is not None and "gap" in e.flags]
     if len(gap_est) != 1:
@@ -265,7 +265,7 @@ def main(argv=None) -> int:
     ap.add_argument("--lead", type=int, default=5, help="sweeps before each gap (default: %(default)s)")
     ap.add_argument("--markdown", type=Path, default=None, help="write the table here too")
     ap.add_argument("--compare-plain", action="store_true",
-                    help="each model also with its crossings drawn as recorded (RadarOdometer(deskew_gaps=False)), "
+                    help="each model also with plain matching (RadarOdometer(config='plain'), run --plain), "
                          "on the same crossings")
     ap.add_argument("--cause", action="store_true", help="the turn-in drive's single matches instead (see above)")
     ap.add_argument("--readout", action="store_true",
@@ -300,11 +300,11 @@ def main(argv=None) -> int:
     results: dict = {}
     runs = [(name, path, True) for name, path in models.items()]
     if args.compare_plain:
-        runs = [r for name, path in models.items() for r in ((f"{name}, not de-skewed", path, False),
+        runs = [r for name, path in models.items() for r in ((f"{name}, plain matching", path, False),
                                                              (name, path, True))]
-    for name, path, deskew_gaps in runs:
+    for name, path, default in runs:
         for c in todo:
-            results.setdefault((name, c.case, c.gap), []).append(cross(path, c, deskew_gaps))
+            results.setdefault((name, c.case, c.gap), []).append(cross(path, c, default))
     lines = table(results)
     print("\n".join(lines))
     print(f"\n({time.time() - t0:.0f} s)")

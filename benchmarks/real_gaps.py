@@ -9,19 +9,18 @@ and its GNSS/INS reference aligned once, as `benchmarks/real_drive.py` aligns it
 default model's run over the whole drive). Only sweeps before ``--last`` (default 200) are used: the drive's
 last 80 sweeps are the scorecard's held-out stretch and stay held out.
 
-Gaps are cut in: from every ``--every``-th sweep ``b`` where the car moves (the reference's step over
-``b`` ≥ ``--min-step`` m), ``k`` sweeps (``--gaps``) after ``b`` are dropped. Each crossing is a short
-stream: ``--lead`` sweeps up to ``b``, then sweep ``b + k + 1`` and one more, run by `RadarOdometer`
-(the recording's sensor period given, as `radar-odom run` gives it), once with the crossing de-skewed
-(the default, ``deskew_gaps=True``) and once drawn as recorded (``deskew_gaps=False``), on the very same
-sweeps. The crossing's error is taken against the reference's relative pose of sweep ``b + k + 1`` in
-sweep ``b`` (translation m, yaw °). The reference is not exact: over a 1.75 s crossing its own heading
-and position carry errors of a few tenths of a degree and a decimetre or so, so small differences between
-the two columns say little; large ones do.
+Gaps are cut in: from every ``--every``-th sweep ``b`` where the car moves (the reference's step over ``b`` ≥
+``--min-step`` m), ``k`` sweeps (``--gaps``) after ``b`` are dropped. Each crossing is a short stream:
+``--lead`` sweeps up to ``b``, then sweep ``b + k + 1`` and one more, run by `RadarOdometer` once with the
+runtime's defaults and once with plain matching (``config="plain"``, `radar-odom run --plain`), on the very
+same sweeps. The crossing's error is taken against the reference's relative pose of sweep ``b + k + 1`` in
+sweep ``b`` (translation m, yaw °). The reference is not exact: over a 1.75 s crossing its own heading and
+position carry errors of a few tenths of a degree and a decimetre or so, so small differences between the two
+columns say little; large ones do.
 
 Rows: per model, gap length and turn class (``straight``: the reference's yaw over the crossing under
 ``--turn-deg``; ``turning`` otherwise), the median, 90th percentile and maximum of both errors for the
-crossing de-skewed and as recorded, and how many crossings each kept the prediction (``gated``).
+crossing by the default and by plain matching, and how many crossings each kept the prediction (``gated``).
 """
 from __future__ import annotations
 
@@ -39,7 +38,7 @@ HELD_OUT_FROM = 200  # the scorecard's held-out stretch starts here (`benchmarks
 
 
 def crossing_error(model, scans, ref_poses, before: int, gap: int, lead: int, period_s: float,
-                   deskew_gaps: bool) -> dict:
+                   default: bool) -> dict:
     """The odometer through one cut gap: its crossing's error against the reference, and its flags."""
     from radar_odom import RadarOdometer
     from radar_odom.odometry.gaps import GAP
@@ -47,7 +46,7 @@ def crossing_error(model, scans, ref_poses, before: int, gap: int, lead: int, pe
     from radar_odom.se2 import invert, to_xyyaw, wrap_angle
 
     after = before + gap + 1
-    odo = RadarOdometer(model, sweep_period_s=period_s, deskew_gaps=deskew_gaps)
+    odo = RadarOdometer(model, config=None if default else "plain")  # as radar-odom run: periods counted itself
     ests = [odo.step(scans[i]) for i in list(range(before - lead, before + 1)) + [after, after + 1]]
     crossing = ests[lead + 1]
     if crossing is None or GAP not in crossing.flags:
@@ -69,8 +68,8 @@ def placements(ref_poses, gap: int, lead: int, every: int, last: int, min_step_m
 
 def table(rows: dict, turn_deg: float) -> list[str]:
     lines = [f"| model | gap (sweeps) | turn (reference yaw over the crossing, {turn_deg:g}° split) | crossings | "
-             "de-skewed: m median / p90 / max | as recorded: m median / p90 / max | de-skewed: ° median / p90 / max "
-             "| as recorded: ° median / p90 / max | gated (de-skewed / as recorded) |",
+             "default: m median / p90 / max | plain: m median / p90 / max | default: ° median / p90 / max "
+             "| plain: ° median / p90 / max | gated (default / plain) |",
              "|---|---:|---|---:|---:|---:|---:|---:|---:|"]
 
     def stats(values):
@@ -133,8 +132,8 @@ def main(argv=None) -> int:
                 pair = [crossing_error(path, scans, ref_poses, b, gap, args.lead, period_s, dg) for dg in (True, False)]
                 turn = "turning" if abs(pair[0]["truth_yaw"]) >= args.turn_deg else "straight"
                 rows.setdefault((name, gap, turn), []).append(pair)
-                print(f"{name} gap {gap} after sweep {b} (reference yaw {pair[0]['truth_yaw']:+.1f}°): de-skewed "
-                      f"{pair[0]['t']:.2f} m {pair[0]['yaw']:.2f}°, as recorded {pair[1]['t']:.2f} m "
+                print(f"{name} gap {gap} after sweep {b} (reference yaw {pair[0]['truth_yaw']:+.1f}°): default "
+                      f"{pair[0]['t']:.2f} m {pair[0]['yaw']:.2f}°, plain {pair[1]['t']:.2f} m "
                       f"{pair[1]['yaw']:.2f}°", flush=True)
     lines = table(dict(sorted(rows.items())), args.turn_deg)
     print("\n".join(lines))

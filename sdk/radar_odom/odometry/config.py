@@ -84,19 +84,16 @@ class GapConfig:
 
     Attributes:
         cross: match it from several window centres around the prediction and take what two sharp readings
-            agree on (`radar_odom.odometry.gaps.crossing_readings`); False: keep the centred match.
-        deskew: an agreed crossing matched again with both sweeps de-skewed by its own velocity.
+            agree on (`radar_odom.odometry.gaps.crossing_readings`); False: the centred match or the prediction.
         max_yaw_accel_rps2: a crossing whose mean yaw rate differs from every yaw rate of the last second by
             more than this × half the gap is a turn the car could not have made: refused.
     """
 
     cross: bool = True
-    deskew: bool = True
     max_yaw_accel_rps2: float = math.radians(40.0)
 
     def __post_init__(self):
         object.__setattr__(self, "cross", _flag("gaps.cross", self.cross))
-        object.__setattr__(self, "deskew", _flag("gaps.deskew", self.deskew))
         object.__setattr__(self, "max_yaw_accel_rps2", config_number(self.max_yaw_accel_rps2, "max_yaw_accel_rps2",
                                                                      low=0.0, open_low=True))
 
@@ -150,7 +147,7 @@ class OdometerConfig:
         """Plain matching: stamps as recorded (their count of periods), consecutive matches, the
         constant-velocity prediction only to place the search window; nothing fused, gated or crossed.
         ``time``: `TimeConfig` fields (e.g. ``sweep_period_s``)."""
-        return cls(time=TimeConfig(match_decides=False, **time), gaps=GapConfig(cross=False, deskew=False),
+        return cls(time=TimeConfig(match_decides=False, **time), gaps=GapConfig(cross=False),
                    prior=None)
 
     @property
@@ -173,7 +170,7 @@ class OdometerConfig:
 LEGACY_KEYWORDS = {
     "max_gap_s": ("time", "max_gap_s"), "on_gap": ("time", "on_gap"), "sweep_period_s": ("time", "sweep_period_s"),
     "min_valid_fraction": ("checks", "min_valid_fraction"), "min_coverage": ("checks", "min_coverage"),
-    "deskew": ("deskew", "enabled"), "centre_yaw": ("deskew", "centre_yaw"), "deskew_gaps": ("gaps", "deskew"),
+    "deskew": ("deskew", "enabled"), "centre_yaw": ("deskew", "centre_yaw"),
 }
 
 

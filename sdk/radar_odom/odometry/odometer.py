@@ -105,8 +105,8 @@ class RadarOdometer:
         config: an `OdometerConfig` (None: the default), or ``"plain"`` (`OdometerConfig.plain`).
         motion_prior: True, False (no fusion or gate) or a `MotionPriorConfig`: the config's ``prior`` replaced.
         **options: the config's fields by their keyword names, applied on top of ``config``: ``max_gap_s``,
-            ``on_gap``, ``sweep_period_s``, ``min_valid_fraction``, ``min_coverage``, ``deskew``, ``centre_yaw``,
-            ``deskew_gaps`` (`radar_odom.odometry.config.LEGACY_KEYWORDS`).
+            ``on_gap``, ``sweep_period_s``, ``min_valid_fraction``, ``min_coverage``, ``deskew``, ``centre_yaw``
+            (`radar_odom.odometry.config.LEGACY_KEYWORDS`).
 
     Raises `ConfigError` (a ValueError) for an option it cannot use (de-skew or yaw centring with a model that
     draws its sweeps itself included); `InvalidModelError` for a corrupt model file or metadata;

@@ -1,10 +1,8 @@
-"""The gap crossing's readings and their de-skew (`MatchStage._crossing` / `deskew_crossing`) against a stand-in graph.
+"""The gap crossing's readings (`MatchStage._crossing`) against a stand-in graph.
 
-The graph is replaced by callables that "measure" a chosen pose whatever the window centre (the residual
-M = truth ∘ centre⁻¹, so `gaps.compose_residual` gives the truth back), one for the reference as recorded
-(``run_pair``) and one for a reference redrawn de-skewed (``run_against``), so the choices the crossing
-makes — de-skewed readings, the fallback to the readings as recorded, the refinement and its limits —
-are checked without a model.
+The graph is replaced by one that "measures" a chosen pose whatever the window centre (the residual
+M = truth ∘ centre⁻¹, so `gaps.compose_residual` gives the truth back), so the choices the crossing makes —
+readings that agree, none that do, readings no car could drive — are checked without a model.
 """
 from __future__ import annotations
 
@@ -15,7 +13,7 @@ import numpy as np
 
 from radar_odom.odometry import gaps as G
 from radar_odom.odometry.config import OdometerConfig
-from radar_odom.odometry.match_stage import CROSSING_DESKEW_ROUNDS, NO_AGREEMENT, MatchStage
+from radar_odom.odometry.match_stage import NO_AGREEMENT, MatchStage
 from radar_odom.odometry.motion_prior import MotionPriorConfig
 from radar_odom.odometry.stream_state import Reference
 from radar_odom.profiles import get_profile
@@ -68,33 +66,13 @@ def cross(st, ref_scan=REF_SCAN):
     return st._crossing(SCAN, None, Reference(RECORDED, 0, ref_scan, 0.0), PRED, INTERVAL_S, lambda reading: True)
 
 
-def test_an_agreed_crossing_is_refined_by_the_de_skewed_match():
-    # the de-skewed graph reads a pose 0.15 m and 0.3° from the recorded one: within twice the agreement,
-    # so the crossing takes it (the consensus' covariance kept)
-    refined = TRUTH + np.array([0.15, 0.0, math.radians(0.3)])
+def test_readings_that_agree_are_the_crossing():
     calls = []
-    out = cross(stage(measuring(TRUTH + [0.5, 0.3, 0.02]), measuring(refined), calls))
-    assert out is not NO_AGREEMENT and len(out) == 2  # agreed: (pose, cov)
-    np.testing.assert_allclose(out[0], refined, atol=1e-9)
-    # the readings were drawn de-skewed (a twist), never against the reference as recorded
-    assert not [c for c in calls if c[0] == "recorded"]
-    drawn = [c[1] for c in calls if c[0] == "deskewed"]
-    assert drawn and all(d.twist is not None for d in drawn)
-    # the refinement's twist is the crossing's own velocity, yaw rate included
-    assert drawn[-1].twist[2] == np.float64(G.crossing_velocity(refined, INTERVAL_S)[2]).item()
-    redraws = [c for c in calls if c[0] == "first" and getattr(c[1], "twist", None) is not None]
-    assert len(redraws) == 1 + CROSSING_DESKEW_ROUNDS  # the prediction's twist, then one per round
-
-
-def test_readings_that_disagree_once_de_skewed_fall_back_to_the_readings_as_recorded():
-    def scattered(drawn):  # one residual from every centre: each reading lands elsewhere, no two agree
-        return np.array([4.0, 4.0, 0.1]), COV.copy(), np.zeros(3)
-
-    calls = []
-    out = cross(stage(measuring(TRUTH), scattered, calls))
-    assert out is not NO_AGREEMENT, out  # agreed on the readings as recorded, not gated
-    np.testing.assert_allclose(out[0], TRUTH, atol=1e-9)  # the refinement found nothing near it: kept as agreed
-    assert [c for c in calls if c[0] == "recorded"]
+    out = cross(stage(measuring(TRUTH), measuring(TRUTH + 1.0), calls))
+    assert out is not NO_AGREEMENT and len(out) == 2  # (pose, cov)
+    np.testing.assert_allclose(out[0], TRUTH, atol=1e-9)
+    # every reading against the stream's reference as recorded (no de-skewed redraw: removed, issue 50)
+    assert calls and not [c for c in calls if c[0] == "deskewed"]
 
 
 def test_nothing_agreeing_either_way_is_no_agreement():
@@ -102,27 +80,6 @@ def test_nothing_agreeing_either_way_is_no_agreement():
         return np.array([4.0, 4.0, 0.1]), COV.copy(), np.zeros(3)
 
     assert cross(stage(scattered, scattered, [])) is NO_AGREEMENT
-
-
-def test_a_refinement_that_jumps_to_another_peak_is_not_taken():
-    # de-skewed readings agree on the truth, but the refining match then reads 1.5 m away: another peak
-    state = {"n": 0}
-
-    def deskewed(drawn):
-        state["n"] += 1
-        far = TRUTH + ([1.5, 0.0, 0.0] if drawn.twist is not None and state["n"] > 9 else 0.0)
-        return measuring(far)(drawn)
-
-    out = cross(stage(measuring(TRUTH), deskewed, []))
-    assert out is not NO_AGREEMENT
-    np.testing.assert_allclose(out[0], TRUTH, atol=1e-9)
-
-
-def test_without_the_reference_sweep_the_crossing_is_as_before():
-    calls = []
-    out = cross(stage(measuring(TRUTH), measuring(TRUTH + 1.0), calls), ref_scan=None)
-    np.testing.assert_allclose(out[0], TRUTH, atol=1e-9)
-    assert not [c for c in calls if c[0] == "deskewed"]
 
 
 def test_readings_agreeing_on_a_motion_no_car_makes_are_left_out():
