@@ -21,7 +21,9 @@ def match(model: str, a: RadarScan, b: RadarScan) -> np.ndarray:
     odo = RadarOdometer(radar_odom.pretrained(model), threads=1, motion_prior=False)
     odo.step(a)
     est = odo.step(b)
-    assert not est.flags, est.flags
+    # a -> c skips a sweep: its stamps say two periods, and that is a gap (issue 50: the first sweep's rotation
+    # time gives the period at once); the measurement is the graph's own either way
+    assert not (est.flags - {"gap"}), est.flags
     return np.asarray(est.measurement)
 
 
