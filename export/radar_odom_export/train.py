@@ -69,6 +69,15 @@ TRAIN_SEARCHES = ("exhaustive", "decoupled")
 DEFAULT_PROFILE = "cart-0.8"  # `radar-odom train --profile` when none is given (and no --distill-from)
 _MSE_TEXT = "mean[((dx^2+dy^2)/res^2) + yaw_weight*(dyaw/rotation_step)^2] (grid cells^2)"
 _CE_TEXT = "cross-entropy of softmax(beta_pose*C) against the trilinear gt target"
+# how a --minutes budget is spent (`run_from_args`, `train`): the training drives are simulated within its first
+# SIM_TRAIN_SHARE, the validation drives within SIM_VAL_SHARE more (at least one of each, however long), one
+# validation pass scores as many pairs as fit in VAL_PASS_SHARE of it, and the training stops early enough for the
+# last pass to end by the deadline; a pass that would end beyond it by more than the grace is skipped
+SIM_TRAIN_SHARE = 0.4
+SIM_VAL_SHARE = 0.1
+VAL_PASS_SHARE = 0.1
+GRACE_S, GRACE_SHARE = 5.0, 0.02  # the grace: max(5 s, 2 % of the budget)
+FINISH_S = 2.0  # kept after the last validation for the final record, log and loss plot
 
 
 @dataclass
@@ -403,19 +412,29 @@ def validation_loss(objective: Objective, dataset: PairDataset, batch: int, d: D
 
 
 @torch.no_grad()
-def validation_stats(objective: Objective, dataset: PairDataset, batch: int, d: Dist) -> dict:
+def validation_stats(objective: Objective, dataset: PairDataset, batch: int, d: Dist,
+                     deadline: float | None = None) -> dict | None:
     """``loss``: mean objective over the validation pairs; ``pose_mse``: mean `pose_loss` (pose
     objectives); ``mask_mean``: mean mask value.
 
     The mask mean watches for the masks drifting fully open (sigmoid saturated at 1 = the raw
     baseline, where gradients vanish) or fully shut.
+
+    ``deadline`` (a `time.perf_counter` value, rank 0's clock): None, the pass abandoned, once it has
+    passed before the pass ends (a mean over part of the pairs would not compare with other epochs').
     """
     if len(dataset) == 0:
         return {"loss": float("nan"), "pose_mse": float("nan"), "mask_mean": float("nan")}
     objective.eval()
     idx = list(range(d.rank, len(dataset), d.world))
     total, mse_total, count, mask_sum, mask_n = 0.0, 0.0, 0, 0.0, 0
-    for start in range(0, len(idx), batch):
+    shard = -(-len(dataset) // d.world)  # the longest rank's share: every rank checks the clock as often
+    for start in range(0, shard, batch):
+        if deadline is not None and d.any(d.main and time.perf_counter() > deadline):
+            objective.train()
+            return None
+        if start >= len(idx):
+            continue
         items = [dataset[i] for i in idx[start : start + batch]]
         b = _to({k: torch.as_tensor(np.stack([it[k] for it in items])) for k in items[0]}, d.device)
         loss, mse = objective(b)
@@ -441,6 +460,39 @@ def _rng_state() -> dict:
 def _set_rng_state(state: dict) -> None:
     if "torch" in state:
         torch.set_rng_state(state["torch"])
+
+
+class _Pairs:
+    """Some pairs of a dataset, by index (a bounded validation set)."""
+
+    def __init__(self, dataset, indices: Sequence[int]):
+        self.dataset, self.indices = dataset, [int(i) for i in indices]
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+    def __getitem__(self, i: int) -> dict:
+        return self.dataset[self.indices[i]]
+
+
+def _spread(total: int, n: int) -> list[int]:
+    """``n`` of ``range(total)``, evenly spaced (every drive, and so every scenario, keeps its share)."""
+    return sorted({int(i) for i in np.linspace(0, total - 1, n).round()}) if n < total else list(range(total))
+
+
+def budget_val_set(objective, val_set, cfg: TrainConfig, d: Dist, deadline: float):
+    """The validation pairs of a budgeted run and the seconds one pass over them is expected to take: as many
+    pairs, evenly spread over the drives, as one pass scores within `VAL_PASS_SHARE` of the budget (and within
+    half the time left), timed on one batch of them; at least that batch. The same pairs every epoch, so the
+    epochs compare."""
+    n = min(cfg.batch, len(val_set))
+    t0 = time.perf_counter()
+    validation_stats(objective, _Pairs(val_set, _spread(len(val_set), n)), cfg.batch, d)
+    per_pair = d.sum([(time.perf_counter() - t0) / -(-n // d.world) if d.main else 0.0])[0]  # rank 0's clock
+    pass_s = min(VAL_PASS_SHARE * 60.0 * cfg.minutes, max(0.0, deadline - time.perf_counter()) / 2)
+    keep = int(min(len(val_set), max(n, d.world * pass_s / max(per_pair, 1e-9))))
+    subset = val_set if keep == len(val_set) else _Pairs(val_set, _spread(len(val_set), keep))
+    return subset, per_pair * -(-keep // d.world)
 
 
 def _config_record(cfg: TrainConfig) -> dict:
@@ -510,6 +562,7 @@ def train(
         real_set = SkipPairs(real_drives, cfg.profile, cfg.real_max_skip, cfg.augment, GainFloor(), cfg.seed)
         train_set = MixedPairs(train_set, real_set, cfg.real_fraction, cfg.seed)
     val_set = PairDataset(val_drives, augment=NO_AUGMENT, with_labels=with_labels, seed=cfg.seed)
+    val_asked = len(val_set)
     model = MaskedCorrelator(cfg.profile, masking=cfg.masking, dft="fft").to(d.device)
     record = _config_record(cfg)
     if cfg.objective == "distil":
@@ -524,6 +577,12 @@ def train(
         record["distill_from"] = Path(cfg.distill_from).name  # no build-machine paths in a checkpoint
     else:
         objective = Objective(model, cfg.objective, cfg.yaw_weight, cfg.pose_loss, cfg.search)
+    val_s = 0.0  # seconds one validation pass is expected to take (under a budget: timed)
+    if deadline is not None and len(val_set):  # a pass that fits the budget's share, timed on one batch
+        val_set, val_s = budget_val_set(objective, val_set, cfg, d, deadline)
+    grace = None if deadline is None else max(GRACE_S, GRACE_SHARE * 60.0 * cfg.minutes)
+    if deadline is not None and d.main and cfg.objective not in TRAINING_FREE:
+        _pyplot()  # the loss plot's import, paid for now rather than after the deadline
     record.update(
         world_size=d.world,
         threads_per_rank=threads,
@@ -532,6 +591,7 @@ def train(
         real_pairs=len(train_set.real) if real_drives else 0,
         real_drives=[x.name for x in real_drives],
         val_pairs=len(val_set),
+        val_pairs_asked=val_asked,  # more than val_pairs where the budget bounded the validation set
         train_drives=[x.name for x in train_drives],
         val_drives=[x.name for x in val_drives],
     )
@@ -612,12 +672,16 @@ def train(
             f"on {d.world} process(es); give more drives or --frames, or a smaller --batch"
         )
 
+    def out_of_time(reserve: float) -> bool:
+        """Whether the budget ends within ``reserve`` seconds (rank 0's clock decides, for every rank)."""
+        return deadline is not None and d.any(d.main and time.perf_counter() + reserve > deadline)
+
     stop = False
     epoch = start_epoch
     for epoch in range(start_epoch, cfg.epochs):
         # a budget spent during the previous epoch's validation ends the run here, rather than
-        # one step into a new epoch followed by a whole validation pass (rank 0's clock decides)
-        if epoch > start_epoch and deadline is not None and d.any(d.main and time.perf_counter() > deadline):
+        # one step into a new epoch followed by a whole validation pass
+        if epoch > start_epoch and out_of_time(val_s + FINISH_S):
             stop = True
             break
         lr = cfg.lr * cfg.lr_decay**epoch
@@ -646,12 +710,23 @@ def train(
             steps_log.append([step, value])
             bar.update(1)
             bar.set_postfix(loss=f"{running:.3g}", lr=f"{lr:.2g}", refresh=False)  # a log gets a line per interval
-            # every rank must take the same number of steps, so rank 0's clock decides
-            if deadline is not None and d.any(d.main and time.perf_counter() > deadline):
+            # every rank must take the same number of steps; the time of the validation pass is kept for it
+            if out_of_time(val_s + FINISH_S):
                 stop = True
                 break
         bar.close()
-        stats = validation_stats(objective, val_set, cfg.batch, d)
+        # under a budget, a pass expected to end beyond its deadline by more than the grace is not begun, and
+        # one that passes it is abandoned: the weights are then kept unvalidated (see below)
+        stats = None
+        if deadline is None or not out_of_time(val_s - grace):
+            t_val = time.perf_counter()
+            stats = validation_stats(objective, val_set, cfg.batch, d,
+                                     deadline=None if deadline is None else deadline + grace)
+            val_s = time.perf_counter() - t_val
+        validated = stats is not None
+        if not validated:
+            stop = True
+            stats = {"loss": math.nan, "pose_mse": math.nan, "mask_mean": math.nan}
         # pose models are selected by pose error (cells²) whatever loss trained them
         val = stats["loss"] if cfg.objective in ("masks", "distil") else stats["pose_mse"]
         tr = d.sum([total, count])
@@ -667,10 +742,12 @@ def train(
                 "lr": lr,
                 "wall_s": wall,
                 "complete": not stop,
+                "validated": validated,
             }
         )
         # an epoch cut short by the budget still counts: its weights were validated
-        if len(val_set) == 0:  # nothing held out: keep the latest weights
+        if len(val_set) == 0 or (not validated and not math.isfinite(best_val)):
+            # nothing held out, or no time left to validate and no validated weights kept: keep the latest
             improved, best_epoch = True, epoch + 1
         else:
             improved = math.isfinite(val) and val < best_val
@@ -679,13 +756,15 @@ def train(
         if improved:  # the trained objective's value at the kept epoch, said beside the pose error
             record["best_val_loss"] = stats["loss"]
         if d.main:
-            print(
-                f"epoch {epoch + 1}: train {history[-1]['train_loss']:.4g}  val {stats['loss']:.4g}  "
-                + (f"val pose mse {stats['pose_mse']:.4g} cells²  " if math.isfinite(stats["pose_mse"]) else "")
-                + f"mask mean {stats['mask_mean']:.3f}"
-                f"{'  (best)' if improved else ''}  [{wall / 60:.1f} min]",
-                file=sys.stderr,
-            )
+            if validated:
+                said = (f"val {stats['loss']:.4g}  "
+                        + (f"val pose mse {stats['pose_mse']:.4g} cells²  " if math.isfinite(stats["pose_mse"]) else "")
+                        + f"mask mean {stats['mask_mean']:.3f}{'  (best)' if improved else ''}")
+            else:
+                said = ("not validated, the budget is spent: "
+                        + ("these weights are kept" if improved else f"epoch {best_epoch} stays the best"))
+            print(f"epoch {epoch + 1}: train {history[-1]['train_loss']:.4g}  {said}  [{wall / 60:.1f} min]",
+                  file=sys.stderr)
             record.update(best_val=best_val, best_epoch=best_epoch, epochs_run=epoch + 1, steps=step, wall_s=wall)
             if improved or not Path(cfg.output).exists():
                 save_checkpoint(cfg.output, model, cfg.masking, train=record)
@@ -700,6 +779,8 @@ def train(
         steps=step,
         wall_s=wall_before + time.perf_counter() - t_start,
         stopped_by_budget=stop,
+        # the checkpoint holds weights no validation pass scored (the budget ended first)
+        kept_unvalidated=bool(history) and not math.isfinite(best_val) and len(val_set) > 0,
     )
     if d.active:
         record.update(_rank_report(d, step, params))
@@ -778,14 +859,22 @@ def _write_log(output, record: dict, history: list, steps_log: list) -> None:
     lp.write_text(json.dumps(payload, indent=1, default=str))
 
 
-def _plot(output, history: list, steps_log: list) -> Path | None:
-    """Loss curve (per-step training loss, smoothed, and per-epoch validation) as a PNG."""
-    if not steps_log:
-        return None
+def _pyplot():
+    """matplotlib's pyplot on the Agg backend (its first import takes seconds on a loaded machine: a budgeted
+    run makes it before training, so the training, not the last plot, pays for it)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _plot(output, history: list, steps_log: list) -> Path | None:
+    """Loss curve (per-step training loss, smoothed, and per-epoch validation) as a PNG."""
+    if not steps_log:
+        return None
+    plt = _pyplot()
 
     s = np.asarray(steps_log, dtype=np.float64)
     fig, ax = plt.subplots(figsize=(7, 4))
@@ -815,9 +904,29 @@ def budget_line(minutes: float | None, resume: bool = False, now: float | None =
     if minutes is None:
         return "train: no time budget (--minutes 0): runs until --epochs are done"
     end = time.localtime((time.time() if now is None else now) + 60.0 * minutes)
-    return (f"train: {minutes:g}-minute budget (--minutes), simulating drives included: stops by "
-            f"{time.strftime('%H:%M:%S', end)} local time, validates and saves; "
+    return (f"train: {minutes:g}-minute budget (--minutes) for all of it (simulating drives within "
+            f"{SIM_TRAIN_SHARE + SIM_VAL_SHARE:.0%} of it, training, validating): stops by "
+            f"{time.strftime('%H:%M:%S', end)} local time with a checkpoint written; "
             + ("continuing the saved run" if resume else "the same command with --resume continues it"))
+
+
+def drives_line(train_report: dict, val_report: dict, minutes: float) -> str:
+    """What `run_from_args` says after simulating under a budget: how many drives of how many asked, and why
+    the rest were left out (`data.build_drives`'s reports)."""
+    def count(r, what):
+        return f"{r['ready']} of {r['asked']} {what} drive{'s' if r['asked'] != 1 else ''}"
+
+    simulated = train_report["simulated"] + val_report["simulated"]
+    cached = train_report["cached"] + val_report["cached"]
+    seconds = train_report["seconds"] + val_report["seconds"]
+    line = (f"train: {count(train_report, 'training')} and {count(val_report, 'validation')} ready "
+            f"({simulated} simulated in {seconds / 60:.1f} min, {cached} from the cache)")
+    left = train_report["left_out"] + val_report["left_out"]
+    if left:
+        line += (f"; {left} left out to keep the {minutes:g}-minute budget (simulating stops at "
+                 f"{SIM_TRAIN_SHARE:.0%} of it for the training drives, {SIM_VAL_SHARE:.0%} more for validation; "
+                 "the drives simulated are cached, so --resume or a longer --minutes adds more)")
+    return line
 
 
 def final_line(output, summary: dict, profile: GridProfile, budget_minutes: float | None = None) -> str:
@@ -842,10 +951,17 @@ def final_line(output, summary: dict, profile: GridProfile, budget_minutes: floa
                 f"of the squared pose error in grid cells, {cell}: {math.sqrt(best):.2g} cells RMS), "
                 f"validation loss {loss:.4g} there ({summary.get('pose_loss', 'mse')}, the trained objective)"
                 if math.isfinite(best) else "no validation pose error (no validation pairs)")
+    if summary.get("kept_unvalidated"):
+        what = (f"the weights of epoch {epoch}, not validated: the {budget_minutes:g}-minute budget ended before "
+                "a validation pass could (--resume, or a longer --minutes, validates)")
+    asked, used = summary.get("val_pairs_asked"), summary.get("val_pairs")
+    if asked and used is not None and used < asked and not summary.get("kept_unvalidated"):
+        what += (f" (validated on {used} of {asked} validation pairs, evenly spread: what one pass scores in "
+                 f"{VAL_PASS_SHARE:.0%} of the budget)")
     why = ""
     if summary.get("stopped_by_budget"):
         why = f"; stopped by the {budget_minutes:g}-minute budget: add --resume to continue"
-    return (f"wrote {output}: {what}; {steps} steps, {wall:.1f} min{why}. "
+    return (f"wrote {output}: {what}; {steps} step{'' if steps == 1 else 's'}, {wall:.1f} min{why}. "
             f"Next: radar-odom export {output} (calibrates its covariance first)")
 
 
@@ -898,6 +1014,14 @@ def _sim_version() -> int:
     from radar_odom.sim import SIMULATOR_VERSION
 
     return SIMULATOR_VERSION
+
+
+def _sim_deadline(minutes: float | None, start: float, share: float, d: Dist) -> float | None:
+    """Until when `build_drives` may simulate: ``share`` of the budget after ``start``; none without a budget;
+    already passed on the ranks after the first (they simulate nothing: rank 0 made the drives ready)."""
+    if minutes is None:
+        return None
+    return start + share * 60.0 * minutes if d.main else -math.inf
 
 
 def run_from_args(args) -> dict:
@@ -963,12 +1087,19 @@ def run_from_args(args) -> dict:
                 workers = args.workers if d.main else 1
                 sensor = getattr(args, "sensor", "randomised")
                 val_frames = getattr(args, "val_frames", None) or args.frames
+                # under a budget, simulating stops at its share (`build_drives`, at least one drive of each);
+                # the other ranks take the drives rank 0 made ready, from the cache, and simulate none
+                budget = {} if minutes is None else {"min_drives": 1 if d.main else 0}
+                reports = {"train": {}, "val": {}}
                 train_drives = build_drives(
                     profile,
                     sensor_specs(seeds, scenarios, args.frames, sensor),
                     workers,
                     with_labels=labels,
                     desc="training drives",
+                    deadline=_sim_deadline(minutes, started, SIM_TRAIN_SHARE, d),
+                    report=reports["train"],
+                    **budget,
                 )
                 # validation on the Oxford preset: the installation the simulator is calibrated to
                 val_drives = build_drives(
@@ -977,7 +1108,12 @@ def run_from_args(args) -> dict:
                     workers,
                     with_labels=labels,
                     desc="validation drives",
+                    deadline=_sim_deadline(minutes, time.perf_counter(), SIM_VAL_SHARE, d),
+                    report=reports["val"],
+                    **budget,
                 )
+                if minutes is not None and d.main:
+                    print(drives_line(reports["train"], reports["val"], minutes), flush=True)
                 info.update(
                     sim_seeds=seeds,
                     val_seeds=val_seeds,

@@ -19,7 +19,12 @@ and cached under $RADAR_ODOM_CACHE (default ~/.cache/radar-odom).
 
 Stops at --minutes (default 20, announced with its end time when the command starts) or
 --epochs, whichever comes first; `--resume` with the same arguments continues (so it does after
-Ctrl-C or SIGTERM, from the last epoch that ended: the line it ends with says which). Writes OUTPUT
+Ctrl-C or SIGTERM, from the last epoch that ended: the line it ends with says which). The budget
+covers everything, and a checkpoint exists when it ends: simulated drives are made within 40 %
+of it for training and 10 % more for validation (at least one of each; a line says how many of
+how many; they are cached, so --resume adds more), a validation pass scores as many pairs as fit
+in a tenth of it, and where no time is left to validate, the best validated checkpoint is kept,
+or the latest weights, said to be unvalidated, where there is none (docs/training.md). Writes OUTPUT
 (the best checkpoint by validation pose error), OUTPUT.state.pt (for --resume), OUTPUT.log.json
 and OUTPUT.loss.png; the last line gives the best epoch's validation pose error (grid cells²)
 and its validation loss (the trained objective) apart. `radar-odom export OUTPUT` then
@@ -91,8 +96,9 @@ def register(subparsers) -> None:
         default=DEFAULT_MINUTES,
         help="wall-clock budget of this invocation, counted from the command's start (simulating drives "
         "included); the end time is printed at the start; at the budget the run stops mid-epoch, validates "
-        "and saves, and the same command with --resume continues it; 0: no budget, --epochs alone; at most a week "
-        "(default: %(default)s)",
+        "and saves, and the same command with --resume continues it (no time left to validate: the best "
+        "validated checkpoint is kept, or the latest weights, said to be unvalidated); 0: no budget, every drive "
+        "and --epochs alone; at most a week (default: %(default)s)",
     )
     g.add_argument(
         "--steps-per-epoch",
