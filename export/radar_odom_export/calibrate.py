@@ -30,8 +30,9 @@ the balance the floors and the scale buy.
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -48,10 +49,21 @@ TARGET_D2 = 3.0
 BAND = (2.7, 3.3)
 JITTER_CELLS = metrics.JITTER_CELLS
 REAL_PREFIX = "real:"  # drive names of real recordings (`real_pairs.real_runs`)
+# how a --minutes budget is spent (`run_from_args`): simulating the drives within its first CAL_SIM_SHARE; the
+# correlation volumes (temperature) and the search estimates (per-axis shape) share the time left until
+# CAL_WORK_SHARE of it (`radar-odom export` leaves itself EXPORT_WORK_SHARE, the rest for writing the ONNX file);
+# each stage takes as many pairs, spread over every drive, as it expects to finish in its time, at least one batch
+CAL_SIM_SHARE = 0.25
+CAL_WORK_SHARE = 0.9
+EXPORT_WORK_SHARE = 0.7
 
 
 class CalibrationError(RadarOdomError, RuntimeError):
-    """No temperature brings mean d² into the target band (the table says why)."""
+    """No temperature brings mean d² into the target band (the table says why; ``table``: the (β, d̄²) tried)."""
+
+    def __init__(self, message: str, table=()):
+        super().__init__(message)
+        self.table = [(float(b), float(v)) for b, v in table]
 
 
 @dataclass
@@ -62,12 +74,17 @@ class CalibrationResult:
     pairs: int
     scenario_table: str = ""
     shape: CovarianceShape | None = None  # the per-axis fit, when made (mean_d2 is then its own)
+    # under a budget: {"volumes": [pairs used, pairs there], "estimates": [...]} (`calibrate_checkpoint`)
+    coverage: dict = field(default_factory=dict)
+    note: str = ""  # where the temperature fell back to beta_pose (`calibrate_checkpoint`)
 
     def to_dict(self) -> dict:
         return {"beta_cov": self.beta_cov, "mean_d2": self.mean_d2, "pairs": self.pairs,
                 "target": TARGET_D2, "band": list(BAND), "jitter_cells": JITTER_CELLS,
                 "table": [[b, d] for b, d in self.table],
-                "shape": None if self.shape is None else self.shape.to_dict()}
+                "shape": None if self.shape is None else self.shape.to_dict(),
+                **({"coverage": self.coverage} if self.coverage else {}),
+                **({"note": self.note} if self.note else {})}
 
 
 @dataclass
@@ -91,31 +108,70 @@ class CovarianceShape:
                 "real_share": self.real_share}
 
 
+# ----------------------------------------------------------------------------- budgets
+def spread_order(n: int) -> list[int]:
+    """``range(n)`` reordered so that every prefix is spread over the whole range (strides of ⌈√n⌉, then the
+    strides shifted by one, ...): work cut short by a budget still covers every drive it can."""
+    step = max(1, math.ceil(math.sqrt(n)))
+    return [i for r in range(step) for i in range(r, n, step)]
+
+
+class _Clock:
+    """Whether another unit of work (a batch, a window) may start before ``deadline``: the first always; then
+    while now + the mean unit so far ends by it. ``deadline`` None: always."""
+
+    def __init__(self, deadline: float | None):
+        self.deadline, self.spent, self.units, self.t = deadline, 0.0, 0, None
+
+    def may_start(self) -> bool:
+        self.t = time.perf_counter()
+        return self.deadline is None or self.units == 0 or self.t + self.spent / self.units <= self.deadline
+
+    def done(self) -> None:
+        self.spent += time.perf_counter() - self.t
+        self.units += 1
+
+
 # ----------------------------------------------------------------------------- volumes
 @torch.no_grad()
 def collect_volumes(model, drives: Sequence, batch: int = 8, max_pairs: int | None = None,
-                    progress_desc: str | None = "correlation volumes", with_names: bool = False):
+                    progress_desc: str | None = "correlation volumes", with_names: bool = False,
+                    deadline: float | None = None, coverage: dict | None = None):
     """(volumes float32[P, K, N, N], gt float64[P, 3]) over the pairs of ``drives`` (and, with
-    ``with_names``, each pair's drive name as a third item)."""
+    ``with_names``, each pair's drive name as a third item).
+
+    ``deadline`` (a `time.perf_counter` value): the pairs are taken in `spread_order`, a batch at a time, while
+    the next batch is expected to end by it (at least one batch). ``coverage`` (a dict) receives
+    ``"volumes": [pairs used, pairs there]``."""
     from radar_odom._progress import progress
 
     pairs = [(d, k) for d in drives for k in range(d.num_pairs)]
+    there = len(pairs)
     if max_pairs is not None and len(pairs) > max_pairs:
         # evenly spaced so every drive (and scenario) stays represented
         pick = np.linspace(0, len(pairs) - 1, max_pairs).round().astype(int)
         pairs = [pairs[i] for i in pick]
-    vols, gts = [], []
+    if deadline is not None:
+        pairs = [pairs[i] for i in spread_order(len(pairs))]
+    vols, gts, used = [], [], []
+    clock = _Clock(deadline)
     bar = progress(total=len(pairs), desc=progress_desc, unit="pair", disable=progress_desc is None)
     for s in range(0, len(pairs), batch):
+        if not clock.may_start():
+            break
         chunk = pairs[s : s + batch]
+        used += chunk
         prev = torch.from_numpy(np.stack([d.images[k] for d, k in chunk]).astype(np.float32))
         cur = torch.from_numpy(np.stack([d.images[k + 1] for d, k in chunk]).astype(np.float32))
         vols.append(model.correlation_volume(prev, cur).float())
         gts.append(np.stack([d.poses_rel[k] for d, k in chunk]))
         bar.update(len(chunk))
+        clock.done()
     bar.close()
+    if coverage is not None:
+        coverage["volumes"] = [len(used), there]
     out = (torch.cat(vols), np.concatenate(gts).astype(np.float64))
-    return (*out, [d.name for d, _ in pairs]) if with_names else out
+    return (*out, [d.name for d, _ in used]) if with_names else out
 
 
 class D2Curve:
@@ -220,10 +276,15 @@ def pair_weights(names: Sequence[str], real_share: float) -> np.ndarray:
 
 @torch.no_grad()
 def search_estimates(model, drives: Sequence, search: str = "exhaustive", batch: int = 8,
-                     progress_desc: str | None = "search estimates"):
+                     progress_desc: str | None = "search estimates", deadline: float | None = None,
+                     coverage: dict | None = None):
     """(poses float64[P, 3], moments float64[P, 3, 3], gt float64[P, 3], names) over every
     consecutive pair of ``drives``, as the ``search`` ("exhaustive" | "fast") computes them; the
-    moments are the model's covariances with its scale and floor taken back out."""
+    moments are the model's covariances with its scale and floor taken back out.
+
+    ``deadline`` (a `time.perf_counter` value): the pairs come in windows of ``batch`` consecutive pairs, taken
+    in `spread_order` over every drive while the next window is expected to end by it (at least one window).
+    ``coverage`` (a dict) receives ``"estimates": [pairs used, pairs there]``."""
     from radar_odom._progress import progress
 
     if search not in ("exhaustive", "fast"):
@@ -233,19 +294,41 @@ def search_estimates(model, drives: Sequence, search: str = "exhaustive", batch:
         from .fast_search import FastSequenceStep, FastStreamStep
 
         seq = FastSequenceStep(FastStreamStep(model)).eval()
-    poses, covs, gts, names = [], [], [], []
-    for d in progress(drives, desc=progress_desc, unit="drive", disable=progress_desc is None):
+
+    def window(images):  # (poses, covariances) of the consecutive pairs of ``images``, as the search has them
         if seq is None:
-            p, c = estimate_drive(model, d.images, batch)
-        else:
-            out = [seq(torch.from_numpy(np.asarray(d.images[k : k + batch + 1], dtype=np.float32)))
-                   for k in range(0, len(d.images) - 1, batch)]
-            p = torch.cat([o[0] for o in out]).double().numpy()
-            c = torch.cat([o[1] for o in out]).double().numpy()
-        poses.append(p)
-        covs.append(c)
-        gts.append(np.asarray(d.poses_rel, np.float64))
-        names += [d.name] * len(p)
+            return estimate_drive(model, images, batch)
+        out = [seq(torch.from_numpy(np.asarray(images[k : k + batch + 1], dtype=np.float32)))
+               for k in range(0, len(images) - 1, batch)]
+        return torch.cat([o[0] for o in out]).double().numpy(), torch.cat([o[1] for o in out]).double().numpy()
+
+    poses, covs, gts, names = [], [], [], []
+    there = sum(d.num_pairs for d in drives)
+    if deadline is None:  # every drive whole
+        for d in progress(drives, desc=progress_desc, unit="drive", disable=progress_desc is None):
+            p, c = window(d.images)
+            poses.append(p)
+            covs.append(c)
+            gts.append(np.asarray(d.poses_rel, np.float64))
+            names += [d.name] * len(p)
+    else:  # windows of ``batch`` pairs, spread over the drives, while they fit
+        wins = [(d, k) for d in drives for k in range(0, d.num_pairs, batch)]
+        clock = _Clock(deadline)
+        bar = progress(total=len(wins), desc=progress_desc, unit="window", disable=progress_desc is None)
+        for i in spread_order(len(wins)):
+            if not clock.may_start():
+                break
+            d, k = wins[i]
+            p, c = window(d.images[k : k + batch + 1])
+            poses.append(p)
+            covs.append(c)
+            gts.append(np.asarray(d.poses_rel[k : k + len(p)], np.float64))
+            names += [d.name] * len(p)
+            bar.update(1)
+            clock.done()
+        bar.close()
+    if coverage is not None:
+        coverage["estimates"] = [int(sum(len(p) for p in poses)), there]
     prof = model.profile
     moments = (np.concatenate(covs) - np.diag(prof.covariance_floor)) / prof.cov_scale
     return np.concatenate(poses), moments, np.concatenate(gts), names
@@ -316,8 +399,7 @@ def calibrate_beta(
         else:
             raise CalibrationError(
                 "no temperature brings mean d² to 3 (d̄² never crosses 3 between "
-                f"β={items[0][0]:.3g} and β={items[-1][0]:.3g}):\n{format_table(items)}"
-            )
+                f"β={items[0][0]:.3g} and β={items[-1][0]:.3g}):\n{format_table(items)}", table=items)
     lo, hi = bracket()
     half = (band[1] - band[0]) / 2
     best = min(table.items(), key=lambda kv: abs(kv[1] - target))
@@ -337,8 +419,7 @@ def calibrate_beta(
     if not band[0] <= best[1] <= band[1]:
         raise CalibrationError(
             f"closest mean d² is {best[1]:.3g} at β={best[0]:.4g}, outside {band} (d̄² jumps across 3: "
-            f"too few pairs?):\n{format_table(sorted(table.items()))}"
-        )
+            f"too few pairs?):\n{format_table(sorted(table.items()))}", table=sorted(table.items()))
     return CalibrationResult(
         beta_cov=float(best[0]),
         mean_d2=float(best[1]),
@@ -382,6 +463,7 @@ def calibrate_checkpoint(
     covariance: str = "fitted",
     search: str = "exhaustive",
     real_share: float = 1.0,
+    work_by: float | None = None,
 ) -> CalibrationResult:
     """Calibrate a checkpoint's covariance on held-out ``drives``; write it in place or to ``output``.
 
@@ -391,7 +473,12 @@ def calibrate_checkpoint(
     kept); "fitted" then fits the per-axis shape (`fit_covariance_shape`) on the estimates of
     ``search`` ("exhaustive" | "fast": the search the model will be exported with). Where
     ``drives`` mix real (named ``real:…``) and simulated drives, the real pairs carry
-    ``real_share`` of the shape's likelihood (`pair_weights`)."""
+    ``real_share`` of the shape's likelihood (`pair_weights`).
+
+    ``work_by`` (a `time.perf_counter` value, a budget's end for this work): the correlation volumes take the
+    first half of the time left, the search estimates the rest (all of it for the temperature alone), each as
+    many pairs, spread over every drive, as fit (`collect_volumes`, `search_estimates`); the result's
+    ``coverage`` says how many of how many."""
     from dataclasses import asdict
 
     from .checkpoint import model_from_dict, read_checkpoint_dict, write_checkpoint_dict
@@ -404,16 +491,36 @@ def calibrate_checkpoint(
     if covariance == "fitted":  # the temperature is tuned in the paper's form, the shape after it
         ckpt["profile"] = {**ckpt["profile"], "cov_scale": 1.0, "cov_floor_cells": 1.0, "cov_floor_yaw_cells": 1.0}
     model = model_from_dict(ckpt, source=str(path))
-    volumes, gt, names = collect_volumes(model, drives, batch=batch, max_pairs=max_pairs, with_names=True)
+    coverage: dict = {}
+    volumes_by = work_by
+    if work_by is not None and covariance == "fitted":
+        # the shape fit's optimiser imports torch._dynamo (seconds on a loaded machine): now, before the
+        # stages share out the time left
+        torch.optim.LBFGS([torch.zeros(1, requires_grad=True)])
+        volumes_by = (time.perf_counter() + work_by) / 2
+    volumes, gt, names = collect_volumes(model, drives, batch=batch, max_pairs=max_pairs, with_names=True,
+                                         deadline=volumes_by, coverage=coverage)
     curve = D2Curve(volumes, gt, model.candidates, model.profile)
-    result = calibrate_beta(curve, model.profile.beta_pose)
+    try:
+        result = calibrate_beta(curve, model.profile.beta_pose)
+    except CalibrationError as exc:
+        if covariance != "fitted" or not exc.table:
+            raise
+        # the temperature alone cannot bring d̄² into the band on these pairs (a few easy scenarios: their errors
+        # sit below the quantisation floor it keeps); the per-axis fit, which sets the scale and the floors by
+        # maximum likelihood, still can: the moments are taken at beta_pose
+        beta = model.profile.beta_pose
+        result = CalibrationResult(beta_cov=beta, mean_d2=curve(beta), table=exc.table, pairs=0)
+        result.note = (f"no temperature brings mean d² into {BAND[0]:g}–{BAND[1]:g} on these pairs (the table): "
+                       f"beta_cov kept at beta_pose = {beta:g}, the per-axis fit sets the scale")
     result.pairs = int(len(gt))
     result.scenario_table = scenario_d2_table(curve, names, result.beta_cov)
     profile = model.profile.with_(beta_cov=result.beta_cov)
     del volumes, curve
     if covariance == "fitted":
         model = model_from_dict({**ckpt, "profile": asdict(profile)}, source=str(path)).eval()
-        poses, moments, gts, pair_names = search_estimates(model, drives, search, batch)
+        poses, moments, gts, pair_names = search_estimates(model, drives, search, batch, deadline=work_by,
+                                                           coverage=coverage)
         errors = pose_errors(gts, poses)
         shape = fit_covariance_shape(moments, errors, profile, weights=pair_weights(pair_names, real_share))
         shape.real_share = real_share if any(str(n).startswith(REAL_PREFIX) for n in pair_names) else None
@@ -422,6 +529,8 @@ def calibrate_checkpoint(
         result.shape, result.mean_d2, result.pairs = shape, shape.mean_d2, shape.pairs
         result.scenario_table = shape_scenario_table(errors, moments, pair_names, profile, fitted)
         profile = fitted
+    if work_by is not None:
+        result.coverage = coverage
     ckpt["profile"] = asdict(profile)
     ckpt["calibration"] = {
         **result.to_dict(),
@@ -441,6 +550,24 @@ def is_calibrated(path) -> bool:
     return "calibration" in read_checkpoint_dict(path)
 
 
+def coverage_line(result: CalibrationResult, sim_drives: dict | None, minutes: float, seconds: float) -> str:
+    """What a budgeted calibration says: how many drives (and sweeps) and pairs of how many it used, its time."""
+    cov = result.coverage
+    parts = []
+    if sim_drives is not None:
+        got, asked = sim_drives["sweeps"]
+        parts.append(f"{sim_drives['ready']} of {sim_drives['asked']} drives"
+                     + (f" ({got} of {asked} sweeps: cut short)" if got < asked else ""))
+    parts.append("the temperature on {} of {} pairs".format(*cov["volumes"]))
+    if "estimates" in cov:
+        parts.append("the per-axis shape on {} of {}".format(*cov["estimates"]))
+    short = (sim_drives is not None and sim_drives["sweeps"][0] < sim_drives["sweeps"][1]) or any(
+        u < t for u, t in cov.values())
+    return (f"calibration: {', '.join(parts)}, in {seconds / 60:.1f} min"
+            + (f": as many as fit in the {minutes:g}-minute budget, spread over every drive" if short
+               else f", within the {minutes:g}-minute budget"))
+
+
 def run_from_args(args) -> CalibrationResult:
     """`radar-odom calibrate`: held-out drives on the checkpoint's grid, then `calibrate_checkpoint`."""
     import sys
@@ -451,6 +578,13 @@ def run_from_args(args) -> CalibrationResult:
     from .data import build_drives, check_seed_policy, parse_seeds, sequence_drives, sim_specs
     from .real_pairs import DEFAULT_HOLDOUT, real_runs
 
+    started = getattr(args, "started", None) or time.perf_counter()  # `radar-odom export` sets its own start
+    minutes = getattr(args, "minutes", None) or None
+    if minutes is not None:  # a finite number of minutes, at most a week, said before any work (ConfigError)
+        from radar_odom.budgets import check_budget_minutes
+
+        check_budget_minutes(minutes, getattr(args, "minutes_flag", "--minutes"))
+    budget_s = None if minutes is None else 60.0 * minutes
     if args.threads:
         torch.set_num_threads(args.threads)
     profile = GridProfile.from_dict(read_checkpoint_dict(args.checkpoint)["profile"])
@@ -466,14 +600,20 @@ def run_from_args(args) -> CalibrationResult:
         seeds = parse_seeds(args.sim_seeds)
         check_seed_policy(seeds, "val")
         scenarios = [s for s in args.scenarios.split(",") if s]
+        sims: dict = {}
         drives = build_drives(
             profile,
             sim_specs(seeds, scenarios, args.frames),
             args.workers,
             with_labels=False,
             desc="calibration drives",
+            deadline=None if budget_s is None else started + CAL_SIM_SHARE * budget_s,
+            report=sims,
+            cut=True,  # every scenario, each drive cut short to fit, rather than the first scenarios whole
         )
         info.update(sim_seeds=seeds, scenarios=scenarios, frames=args.frames)
+        if budget_s is not None:
+            info["sim_drives"] = {"ready": sims["ready"], "asked": sims["asked"], "sweeps": sims["sweeps"]}
     drives = drives + real
     result = calibrate_checkpoint(
         args.checkpoint,
@@ -486,8 +626,13 @@ def run_from_args(args) -> CalibrationResult:
         covariance=getattr(args, "covariance", "fitted"),
         search=getattr(args, "search", "exhaustive"),
         real_share=getattr(args, "real_share", 1.0),
+        work_by=None if budget_s is None else started + getattr(args, "work_share", CAL_WORK_SHARE) * budget_s,
     )
     print(format_table(result.table, chosen=result.beta_cov))
+    if result.note:
+        print(f"note: {result.note}")
+    if budget_s is not None:
+        print(coverage_line(result, info.get("sim_drives"), minutes, time.perf_counter() - started))
     out = args.output or args.checkpoint
     if result.shape is None:
         print("\nper scenario at the chosen β:\n" + result.scenario_table)
@@ -495,7 +640,9 @@ def run_from_args(args) -> CalibrationResult:
               f"(beta_pose = {profile.beta_pose:g}); written to {out}")
         return result
     sh = result.shape
-    print(f"\nper scenario, {sh.search} search, every consecutive pair:\n" + result.scenario_table)
+    pairs = ("every consecutive pair" if "estimates" not in result.coverage
+             or result.coverage["estimates"][0] == result.coverage["estimates"][1] else "the pairs above")
+    print(f"\nper scenario, {sh.search} search, {pairs}:\n" + result.scenario_table)
     print(f"\nbeta_cov = {result.beta_cov:.4g} (beta_pose = {profile.beta_pose:g}), then by maximum likelihood "
           f"cov_scale = {sh.cov_scale:.4g}, cov_floor_cells = {sh.cov_floor_cells:.4g}, "
           f"cov_floor_yaw_cells = {sh.cov_floor_yaw_cells:.4g} -> mean d² = {sh.mean_d2:.3f} over {sh.pairs} pairs"

@@ -16,8 +16,11 @@ scale of that moment and the quantisation floors of translation and yaw are fitt
 likelihood on every consecutive pair, as --search computes them, so that a sharp peak's
 covariance is small and a corridor ridge's large; the per-scenario d² table shows both. The
 values are written into the checkpoint's profile (in place, or to -o); `radar-odom export` then
-carries them into the graph. DATA are recording folders with ground truth; without DATA, simulated
-drives of --scenarios x --sim-seeds are used (policy: validation seeds 2000-2999, never the
+carries them into the graph. Where no temperature brings mean d² into the band (only easy
+drives, whose errors sit below the quantisation floor the temperature keeps), --covariance
+fitted keeps beta_cov at beta_pose and lets the per-axis fit set the scale, in a note line;
+--covariance temperature stops with the table. DATA are recording folders with ground truth;
+without DATA, simulated drives of --scenarios x --sim-seeds are used (policy: validation seeds 2000-2999, never the
 training or evaluation seeds). --real adds real recordings with a reference (Oxford gt,
 Boreas/MulRan poses, a RADIATE GNSS/INS track aligned as `radar-odom run` aligns it), their
 last --real-holdout sweeps left out for an honest test; their pairs then carry --real-share of
@@ -59,6 +62,12 @@ def register(subparsers) -> None:
     p.add_argument("--batch", type=int, default=8, help="pairs per forward pass (default: %(default)s)")
     p.add_argument("--workers", type=int, default=2, help="processes simulating drives (default: %(default)s)")
     p.add_argument("--threads", type=threads_arg, default=None, help="torch threads (default: all cores)")
+    p.add_argument("--minutes", type=float, default=0.0,
+                   help="wall-clock budget: the simulated drives within its first quarter, then the temperature's "
+                        "correlation volumes and the per-axis fit's estimates on as many pairs, spread over every "
+                        "drive, as fit in 90 %% of it (at least one drive and one batch); the line after the d² "
+                        "table says how many of how many. 0: no budget, every pair (default: %(default)s; at "
+                        "most a week)")
     p.set_defaults(func=run)
 
 

@@ -14,6 +14,7 @@ from ..model_zoo import shipped_export  # noqa: F401  (re-exported: its home is 
 from ..outputs import check_output_path  # noqa: F401  (re-exported: its home is radar_odom.outputs)
 from . import threads_arg
 
+DEFAULT_CALIBRATION_MINUTES = 3.0  # `--calibration-minutes`: an export that calibrates first ends in a known time
 HELP = "export a trained checkpoint to one self-contained ONNX graph (sweep in, pose + covariance out)"
 
 
@@ -21,9 +22,9 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "export", help=HELP, description=HELP + ". A checkpoint without a calibrated covariance (straight "
         "from `radar-odom train`) is first calibrated in place as `radar-odom calibrate CHECKPOINT` would "
-        "(simulated held-out drives; a few minutes, with a progress bar and the d² table), so the file written "
-        "is what the shipped models are: fast search, stream form, calibrated covariance. Needs the export "
-        "extra (torch, onnx, onnxscript)."
+        "(simulated held-out drives, within --calibration-minutes, with a progress bar and the d² table), so "
+        "the file written is what the shipped models are: fast search, stream form, calibrated covariance. Needs "
+        "the export extra (torch, onnx, onnxscript)."
     )
     p.add_argument("checkpoint", help="checkpoint written by `radar-odom train` (.pt), or the name of a "
                                       "shipped one (cart-0.8, cart-0.4): the weights of the pretrained models")
@@ -48,6 +49,14 @@ def register(subparsers) -> None:
     p.add_argument("--no-calibrate", action="store_true",
                    help="write a checkpoint that was never calibrated as it is: its covariance is then the raw "
                         "softmax moment, not a calibrated 1σ (most estimates come out prior_dominated); warned")
+    p.add_argument("--calibration-minutes", type=float, default=DEFAULT_CALIBRATION_MINUTES, metavar="M",
+                   help="wall-clock budget of an export that calibrates first, counted from the command's start "
+                        "and writing the ONNX file included: the calibration simulates every scenario within its "
+                        "first quarter (each drive cut short to fit) and takes as many pairs, spread over every "
+                        "drive, as fit in 70 %% of it (at least one batch; the line after the d² table says how "
+                        "many of how many), the rest is left for the writing; 0: no budget, every pair "
+                        "`radar-odom calibrate` takes "
+                        "(default: %(default)s; at most a week)")
     p.add_argument("--calibration-data", nargs="+", default=None, metavar="DIR",
                    help="recordings with ground truth to calibrate an uncalibrated checkpoint on, instead of "
                         "`radar-odom calibrate`'s simulated held-out drives")
@@ -76,6 +85,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
+    import time
     from pathlib import Path
 
     from ..errors import MissingExtraError, OutputError
@@ -85,6 +95,8 @@ def run(args) -> int:
         from radar_odom_export.onnx_export import check_search_form, export_checkpoint
     except ImportError as exc:  # torch / onnx missing: say which extra to install
         raise MissingExtraError(getattr(exc, "name", None) or "torch", "export") from exc
+    args.started = time.perf_counter()  # a calibration's budget counts from here
+    check_calibration_minutes(args)
     check_opset(args.opset)
     ckpt = resolve_checkpoint(args.checkpoint)
     shipped = None if Path(args.checkpoint).is_file() else shipped_export(ckpt.stem)
@@ -137,7 +149,18 @@ def run(args) -> int:
         from radar_odom_export.sweep_form import export_sweep_checkpoint as export_checkpoint
     report = export_checkpoint(ckpt, out, **common)
     print(report.summary())
+    if getattr(args, "budget_said", False):
+        print(f"export: {(time.perf_counter() - args.started) / 60:.1f} min in all, calibration included "
+              f"(budget {args.calibration_minutes:g} min: --calibration-minutes)")
     return 0
+
+
+def check_calibration_minutes(args) -> None:
+    """`ConfigError` in one line for a ``--calibration-minutes`` that is no budget (negative, not finite, beyond a
+    week), before any work."""
+    from ..budgets import check_budget_minutes
+
+    check_budget_minutes(args.calibration_minutes, "--calibration-minutes")
 
 
 def default_search(checkpoint, form: str | None) -> str:
@@ -183,27 +206,49 @@ def calibrate_first(checkpoint, search: str, args) -> None:
 
     from radar_odom_export.calibrate import is_calibrated
 
+    own_budget = args.calibration_minutes != DEFAULT_CALIBRATION_MINUTES  # given, so said where it cannot apply
     if is_calibrated(checkpoint):
         if args.calibration_data:
             print(f"note: {checkpoint} is calibrated already: --calibration-data unused (`radar-odom calibrate "
                   f"{checkpoint} DATA…` calibrates it again)", file=sys.stderr)
+        if own_budget:
+            print(f"note: {checkpoint} is calibrated already: --calibration-minutes unused", file=sys.stderr)
         return
     if args.no_calibrate:
         print(f"radar-odom export: warning: {checkpoint} was never calibrated (--no-calibrate): the model's "
               "covariance is the raw softmax moment, not a 1σ, so most estimates will come out prior_dominated; "
               f"run `radar-odom calibrate {checkpoint}` first, or export without --no-calibrate", file=sys.stderr)
+        if own_budget:
+            print("note: --no-calibrate: --calibration-minutes unused", file=sys.stderr)
         return
     from radar_odom_export.calibrate import run_from_args
 
     from . import calibrate
 
     fit_search = search if search in ("exhaustive", "fast") else "fast"  # calibrate fits these two (decoupled: fast)
+    minutes = args.calibration_minutes or None
+    budget = ""
+    if minutes is not None:
+        import time
+
+        started = getattr(args, "started", None) or time.perf_counter()
+        end = time.localtime(time.time() + 60.0 * minutes - (time.perf_counter() - started))
+        budget = (f"; within the {minutes:g}-minute budget of this export (--calibration-minutes), the ONNX file "
+                  f"written by {time.strftime('%H:%M:%S', end)} local time")
+        args.budget_said = True
     print(f"{checkpoint}: no calibrated covariance yet: calibrating it first, in place, as `radar-odom calibrate "
           f"{checkpoint}` would ({fit_search} search"
           + (", on --calibration-data" if args.calibration_data else ", simulated held-out drives")
-          + "; --no-calibrate skips this) ...", flush=True)
-    run_from_args(calibrate.default_args(str(checkpoint), search=fit_search, data=list(args.calibration_data or []),
-                                         threads=args.threads))
+          + f"; --no-calibrate skips this){budget} ...", flush=True)
+    cal_args = calibrate.default_args(str(checkpoint), search=fit_search, data=list(args.calibration_data or []),
+                                      threads=args.threads, minutes=minutes or 0.0)
+    if minutes is not None:  # the budget is the export's: it counts from its start and leaves time for the writing
+        from radar_odom_export.calibrate import EXPORT_WORK_SHARE
+
+        cal_args.started = getattr(args, "started", None)
+        cal_args.work_share = EXPORT_WORK_SHARE
+        cal_args.minutes_flag = "--calibration-minutes"
+    run_from_args(cal_args)
 
 
 def check_opset(opset: int) -> None:
