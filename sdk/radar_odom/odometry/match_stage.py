@@ -130,12 +130,38 @@ class MatchStage:
         if not (self.match_decides and self._prior.ready):
             return Match(pose, cov, new_ref, turn, k_stamp, frozenset({gaps.GAP} if k_stamp > sweeps else ()))
         if readable and self.agrees(pose, cov, sweeps, lead_s, NOTHING_DROPPED_D2 if by_stamps else self._gate_d2):
-            return Match(pose, cov, new_ref, turn, sweeps)  # one period a sweep: nothing was dropped
+            # one period a sweep: nothing was dropped, unless the stamps' motion lies beyond what this window
+            # could see and a match centred there reads it (a repeating street read a 2 m step where 8 sweeps,
+            # 18 m, had been dropped: fresh junction drive 1012826702, benchmarks/do_no_harm.py)
+            seen = None
+            if by_stamps and self.beyond_window(k_stamp, lead_s):
+                pred = gaps.crossing_prior(*self.prior_step(), k_stamp * self.period_s, lead_s)
+                seen = self.centred(scan, twist, pred[0], ref)
+                if not self.plausible(seen, pred, k_stamp * self.period_s, recent_yaw_rates):
+                    seen = None
+            if seen is None:
+                return Match(pose, cov, new_ref, turn, sweeps)
+            return self.cross_gap(scan, twist, ref, k_stamp, lead_s, new_ref, recent_yaw_rates, centred=seen)
         if not by_stamps:
             return Match(pose, cov, new_ref, turn, k_stamp)
         plain = (pose, cov) if readable else None
         inner = readable and self.readable(residual, cov, CONFIRM_FRACTION)
         return self.cross_gap(scan, twist, ref, k_stamp, lead_s, new_ref, recent_yaw_rates, plain, inner)
+
+    def beyond_window(self, periods: int, lead_s: float) -> bool:
+        """Whether the gap prediction over ``periods`` periods lies beyond what a window at identity reads
+        (`gaps.at_window_edge`): a motion the plain match could not have seen."""
+        pred = gaps.crossing_prior(*self.prior_step(), periods * self.period_s, lead_s)[0]
+        return gaps.at_window_edge(turn_frame(pred, None, -self.mount_yaw_rad)[0], self._window_m,
+                                   self.profile.rotation_range_rad)
+
+    def plausible(self, reading, pred, interval_s: float, recent_yaw_rates=()) -> bool:
+        """Whether a crossing ``reading`` (pose, cov) is one to take: within the gate of the gap's prior
+        ``pred``, near the arc a car drives with its yaw (`gaps.off_the_arc`), at a yaw rate it can reach from
+        the last second's (`gaps.drivable`)."""
+        return (reading is not None and gaps.crossing_d2(*reading, *pred) <= self._gate_d2
+                and not gaps.off_the_arc(*reading)
+                and gaps.drivable(*reading, interval_s, recent_yaw_rates, self.max_yaw_accel))
 
     def readable(self, residual, cov, fraction: float = gaps.EDGE_FRACTION) -> bool:
         """Whether a match's residual (radar frame, in the window it was drawn in) lies within ``fraction``
@@ -165,11 +191,12 @@ class MatchStage:
         return turn_frame(*uncentre(*moved, a_ref, 0.0), self.mount_yaw_rad)
 
     def cross_gap(self, scan, twist, ref, periods: int, lead_s: float, new_ref, recent_yaw_rates=(),
-                  plain=None, plain_inner: bool = False) -> Match:
+                  plain=None, plain_inner: bool = False, centred=None) -> Match:
         """The `Match` of a step the stamps put ``periods`` periods after the reference and the plain match did
         not read as consecutive (steps 1-3 of the module docstring); ``new_ref``: the new sweep in its own frame
         (the plain match's); ``plain``: (pose, cov) of the plain match where it was readable, else None;
-        ``plain_inner``: it lies within `CONFIRM_FRACTION` of its window (it may confirm the centred match).
+        ``plain_inner``: it lies within `CONFIRM_FRACTION` of its window (it may confirm the centred match);
+        ``centred``: the match centred on the prediction where already made.
 
         Confident (flagged ``gap`` only) where the match centred on the prediction and the plain match read the
         same motion from two window placements, a car could drive it and the gap's prior allows it. Otherwise,
@@ -180,11 +207,10 @@ class MatchStage:
         pred = gaps.crossing_prior(*self.prior_step(), interval_s, lead_s)
 
         def plausible(reading):
-            return (reading is not None and gaps.crossing_d2(*reading, *pred) <= self._gate_d2
-                    and not gaps.off_the_arc(*reading)
-                    and gaps.drivable(*reading, interval_s, recent_yaw_rates, self.max_yaw_accel))
+            return self.plausible(reading, pred, interval_s, recent_yaw_rates)
 
-        centred = self.centred(scan, twist, pred[0], ref)
+        if centred is None:
+            centred = self.centred(scan, twist, pred[0], ref)
         tol_m, tol_rad, _ = gaps.agreement(self.profile)
         if (plausible(centred) and plain is not None and plain_inner
                 and gaps.poses_agree(centred[0], plain[0], tol_m, tol_rad)):
