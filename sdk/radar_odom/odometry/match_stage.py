@@ -21,7 +21,9 @@ prior's gate judges it). Where they do, the step is a gap crossing (`cross_gap`)
    else the centred match, else the plain one; each only where the gap's prior allows it and a car could
    drive it (near the arc its yaw makes, `gaps.off_the_arc`, at a yaw rate it can reach, `gaps.drivable`):
    a gap prediction does not replace a sharp match without evidence;
-3. else the prediction, flagged ``uncertain``, ``gated`` and ``prior_dominated``.
+3. else the plain match where it lies within the motion prior's gate of one period a sweep (the stamps were
+   late after all), flagged ``uncertain``; else the prediction, flagged ``uncertain``, ``gated`` and
+   ``prior_dominated``.
 
 The plain mode (``match_decides`` False) matches with the window centred on the stamps' prediction where they
 say sweeps were dropped, else where the graph puts it, and takes that match as it is.
@@ -130,23 +132,24 @@ class MatchStage:
         if not (self.match_decides and self._prior.ready):
             return Match(pose, cov, new_ref, turn, k_stamp, frozenset({gaps.GAP} if k_stamp > sweeps else ()))
         if readable and self.agrees(pose, cov, sweeps, lead_s, NOTHING_DROPPED_D2 if by_stamps else self._gate_d2):
-            # one period a sweep: nothing was dropped, unless the stamps' motion lies beyond what this window
-            # could see and a match centred there reads it (a repeating street read a 2 m step where 8 sweeps,
-            # 18 m, had been dropped: fresh junction drive 1012826702, benchmarks/do_no_harm.py)
-            seen = None
+            # one period a sweep: nothing was dropped, whatever the stamps say. Where their motion lies beyond what
+            # this window could see and a match centred there reads it too, the two readings disagree on what
+            # happened: the match stands (a stall's late stamp moves no pose), flagged uncertain with a covariance
+            # that spans both (a repeating street read a 2 m step where 8 sweeps, 18 m, had been dropped: fresh
+            # junction drive 1012826702, benchmarks/do_no_harm.py; taking the centred reading instead made a long
+            # stall a phantom 8 m crossing on another fresh drive)
             if by_stamps and self.beyond_window(k_stamp, lead_s):
                 pred = gaps.crossing_prior(*self.prior_step(), k_stamp * self.period_s, lead_s)
                 seen = self.centred(scan, twist, pred[0], ref)
-                if not self.plausible(seen, pred, k_stamp * self.period_s, recent_yaw_rates):
-                    seen = None
-            if seen is None:
-                return Match(pose, cov, new_ref, turn, sweeps)
-            return self.cross_gap(scan, twist, ref, k_stamp, lead_s, new_ref, recent_yaw_rates, centred=seen)
+                if self.plausible(seen, pred, k_stamp * self.period_s, recent_yaw_rates):
+                    d = innovation(seen[0], pose)
+                    return Match(pose, cov, new_ref, turn, sweeps, frozenset({UNCERTAIN}), np.outer(d, d) + seen[1])
+            return Match(pose, cov, new_ref, turn, sweeps)
         if not by_stamps:
             return Match(pose, cov, new_ref, turn, k_stamp)
         plain = (pose, cov) if readable else None
         inner = readable and self.readable(residual, cov, CONFIRM_FRACTION)
-        return self.cross_gap(scan, twist, ref, k_stamp, lead_s, new_ref, recent_yaw_rates, plain, inner)
+        return self.cross_gap(scan, twist, ref, k_stamp, lead_s, new_ref, recent_yaw_rates, plain, inner, sweeps)
 
     def beyond_window(self, periods: int, lead_s: float) -> bool:
         """Whether the gap prediction over ``periods`` periods lies beyond what a window at identity reads
@@ -191,12 +194,12 @@ class MatchStage:
         return turn_frame(*uncentre(*moved, a_ref, 0.0), self.mount_yaw_rad)
 
     def cross_gap(self, scan, twist, ref, periods: int, lead_s: float, new_ref, recent_yaw_rates=(),
-                  plain=None, plain_inner: bool = False, centred=None) -> Match:
+                  plain=None, plain_inner: bool = False, sweeps: int = 1) -> Match:
         """The `Match` of a step the stamps put ``periods`` periods after the reference and the plain match did
         not read as consecutive (steps 1-3 of the module docstring); ``new_ref``: the new sweep in its own frame
         (the plain match's); ``plain``: (pose, cov) of the plain match where it was readable, else None;
         ``plain_inner``: it lies within `CONFIRM_FRACTION` of its window (it may confirm the centred match);
-        ``centred``: the match centred on the prediction where already made.
+        ``sweeps``: the sweeps since the reference (the periods were nothing dropped).
 
         Confident (flagged ``gap`` only) where the match centred on the prediction and the plain match read the
         same motion from two window placements, a car could drive it and the gap's prior allows it. Otherwise,
@@ -209,8 +212,7 @@ class MatchStage:
         def plausible(reading):
             return self.plausible(reading, pred, interval_s, recent_yaw_rates)
 
-        if centred is None:
-            centred = self.centred(scan, twist, pred[0], ref)
+        centred = self.centred(scan, twist, pred[0], ref)
         tol_m, tol_rad, _ = gaps.agreement(self.profile)
         if (plausible(centred) and plain is not None and plain_inner
                 and gaps.poses_agree(centred[0], plain[0], tol_m, tol_rad)):
@@ -224,6 +226,11 @@ class MatchStage:
         for reading in (agreed, centred, plain):
             if reading is not None and reading is not NO_AGREEMENT and plausible(reading):
                 return Match(reading[0], reading[1], new_ref, 0.0, periods, uncertain, pred[1])
+        if plain is not None and self.agrees(*plain, sweeps, lead_s, self._gate_d2):
+            # no crossing reading holds, but the plain match is sharp and within the motion prior's gate of one
+            # period a sweep: the stamps were late (a 1 s stall in a turn), the match decides (fresh junction
+            # drive 847199047: the prediction, 8.1 m, had replaced a right 1.25 m match)
+            return Match(plain[0], plain[1], new_ref, 0.0, sweeps, frozenset({UNCERTAIN}))
         # nothing read agrees with the gap's prior and a car's motion: the prediction
         return Match(pred[0], pred[1], new_ref, 0.0, periods, uncertain | {GATED, PRIOR_DOMINATED}, pred[1])
 
