@@ -255,3 +255,11 @@ def test_warnings_under_a_long_command_print_in_cli_words(capsys):
     assert err.strip() == ("radar-odom adapt: warning: 12 sweep stamps were late; to keep them as recorded, ... "
                            "(radar-odom run --keep-stamps)")
     assert "StampWarning" not in err and "warnings.warn" not in err
+
+
+def test_export_refuses_no_calibrate_with_calibration_data_before_any_work(tmp_path, capsys):
+    """Issue 51: `export --no-calibrate --calibration-data X` dropped the data without a word."""
+    pytest.importorskip("torch", reason="export needs the export extra (torch)")
+    out = tmp_path / "m.onnx"
+    assert main(["export", "cart-0.8", "-o", str(out), "--no-calibrate", "--calibration-data", str(tmp_path)]) == 1
+    assert "contradict" in one_error_line(capsys, "export") and not out.exists()

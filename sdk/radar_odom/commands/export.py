@@ -96,6 +96,11 @@ def run(args) -> int:
     except ImportError as exc:  # torch / onnx missing: say which extra to install
         raise MissingExtraError(getattr(exc, "name", None) or "torch", "export") from exc
     args.started = time.perf_counter()  # a calibration's budget counts from here
+    if args.no_calibrate and args.calibration_data:  # issue 51: the data was ignored without a word
+        from ..errors import ConfigError
+
+        raise ConfigError("--no-calibrate and --calibration-data contradict each other: drop --no-calibrate to "
+                          "calibrate on that data, or drop --calibration-data to export uncalibrated")
     check_calibration_minutes(args)
     check_opset(args.opset)
     ckpt = resolve_checkpoint(args.checkpoint)
