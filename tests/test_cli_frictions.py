@@ -257,6 +257,7 @@ def test_warnings_under_a_long_command_print_in_cli_words(capsys):
     assert "StampWarning" not in err and "warnings.warn" not in err
 
 
+@pytest.mark.torch
 def test_export_refuses_no_calibrate_with_calibration_data_before_any_work(tmp_path, capsys):
     """Issue 51: `export --no-calibrate --calibration-data X` dropped the data without a word."""
     pytest.importorskip("torch", reason="export needs the export extra (torch)")

@@ -353,6 +353,7 @@ def test_an_interrupted_adapt_says_whether_resume_can_continue(tmp_path, monkeyp
         "continues from there (the recordings are read and labelled again first); the steps since are lost")
 
 
+@pytest.mark.torch
 def test_build_drives_workers_leave_ctrl_c_to_the_parent():
     """A terminal's Ctrl-C reaches train's simulation workers too: each printed its own KeyboardInterrupt
     traceback. They ignore it; the parent stops the pool."""
