@@ -212,3 +212,12 @@ def test_a_hundred_ms_of_host_jitter_leaves_the_stamps_as_recorded():
         tb = fit_time_base(t, period_hint_us=250_000)
         assert np.array_equal(tb.times_us, t) and tb.dropped == 0, seed
         assert "kept as recorded" in tb.summary()
+
+
+def test_a_removed_option_says_what_replaced_it(model):
+    from radar_odom.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="time_base was removed: the match decides"):
+        RadarOdometer(model, time_base=None)
+    with pytest.raises(ConfigError, match="deskew_gaps was removed"):
+        RadarOdometer(model, deskew_gaps=True)

@@ -174,6 +174,14 @@ LEGACY_KEYWORDS = {
 }
 
 
+# keywords RadarOdometer took before issue 50 whose stage was removed, and what replaces each
+REMOVED_KEYWORDS = {
+    "time_base": "the match decides how many periods a step spans; the reader's time base is not passed any more "
+                 "(drop the argument)",
+    "deskew_gaps": "the gap crossing's de-skew won no row of its ablation (docs/scorecard.md); drop the argument",
+}
+
+
 def config_from(config: OdometerConfig | str | None = None, *, motion_prior=None, **keywords) -> OdometerConfig:
     """The `OdometerConfig` of ``config`` (None: the default; ``"plain"``; ``"default"``) with the keyword
     arguments `RadarOdometer` also takes (``max_gap_s=``, ``deskew=``, ``motion_prior=`` …) applied on top;
@@ -184,6 +192,9 @@ def config_from(config: OdometerConfig | str | None = None, *, motion_prior=None
         config = OdometerConfig.plain()
     elif not isinstance(config, OdometerConfig):
         raise ConfigError(f"config must be an OdometerConfig, 'default' or 'plain', got {config!r}")
+    removed = sorted(set(keywords) & set(REMOVED_KEYWORDS))
+    if removed:
+        raise ConfigError("; ".join(f"{name} was removed: {REMOVED_KEYWORDS[name]}" for name in removed))
     unknown = sorted(set(keywords) - set(LEGACY_KEYWORDS))
     if unknown:
         raise ConfigError(f"unknown odometer option(s) {', '.join(unknown)}; known: "
