@@ -1,6 +1,9 @@
 """An int8 masker: static QDQ quantisation of an exported model's U-Net ``Conv`` nodes.
 
-    radar-odom export cart-0.8 --search fast --quantize int8 -o cart-0.8-int8.onnx
+    radar-odom export cart-0.8 --search fast --quantize static -o cart-0.8-int8.onnx
+
+The scheme's name is ``static`` (`QUANTIZE_CHOICES`; ``int8``, its earlier name, is accepted as a
+synonym and recorded as ``static``).
 
 `quantize_model` takes a written (fp32, checked) radar-odom ONNX file and writes a copy in which
 every ``Conv`` node — in these graphs only the masker's U-Net has any — reads
@@ -10,11 +13,15 @@ is quantised: the input normalisation, the rotation, the matmul DFT, the correla
 soft-argmax stay float32 (`onnxruntime.quantization.quantize_static` with
 ``op_types_to_quantize=["Conv"]``).
 
-Calibration: activation ranges (MinMax by default) come from simulated sweeps, fed to the graph
+Calibration: activation ranges (percentile by default) come from simulated sweeps, fed to the graph
 as the runtime feeds them — each sweep on the profile's Cartesian grid (`radar_odom.polar.
 polar_to_cartesian`, what `RadarOdometer` does to a scan) with the stream state the fp32 graph
 made from the sweep before it. The default calibration drives are validation seeds
 (`CALIBRATION_SEEDS`, 2000–2001: never the evaluation seeds ≥ 5000 the accuracy is measured on).
+Real sweeps may be added (`real_calibration_drives`): the shared RADIATE city drive's sweeps *except*
+its held-out last 80 (`REAL_HOLDOUT`, the stretch the scorecard's "real drive held-out" row reads:
+never calibrated or tuned on), read as `radar-odom calibrate` reads them (`data.scan_to_cartesian`);
+the metadata then names the recording, the sweeps used and the held-out count.
 
 The file keeps the fp32 file's metadata plus ``radar_odom.quantization`` (JSON: scheme, quantised
 op types and node count, weight/activation types, per-channel, calibration method and drives,
@@ -42,6 +49,7 @@ import logging
 import os
 import tempfile
 import time
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -52,10 +60,12 @@ from radar_odom.errors import ExportError, RadarOdomError
 from radar_odom.model_file import ModelInfo, build_metadata
 
 __all__ = ["CALIBRATION_SCENARIOS", "CALIBRATION_SEEDS", "DEFAULT_FLOAT_CONVS", "INT8_TOLERANCE", "QUANTIZE_CHOICES",
-           "QuantizeReport", "SweepFeeds", "calibration_drives", "check_qdq_conv_only", "export_quantized",
-           "quantize_model", "stream_feeds"]
+           "QuantizeReport", "REAL_HOLDOUT", "SCHEME", "SweepFeeds", "calibration_drives", "check_qdq_conv_only",
+           "export_quantized", "quantize_model", "quantize_scheme", "real_calibration_drives", "stream_feeds"]
 
-QUANTIZE_CHOICES = ("int8",)
+SCHEME = "static"  # static QDQ: activation ranges fixed by calibration, written in the metadata's "scheme"
+QUANTIZE_CHOICES = (SCHEME, "int8")  # "int8": the scheme's earlier name, accepted as a synonym
+REAL_HOLDOUT = 80  # the shared drive's last sweeps, never calibrated on (real_pairs.DEFAULT_HOLDOUT, the scorecard's)
 CALIBRATION_SEEDS = (2000, 2001)  # validation seeds (radar_odom_export.data policy), not evaluation
 CALIBRATION_SCENARIOS = ("urban", "heavy_traffic", "open", "highway")
 DEFAULT_FLOAT_CONVS = "first,last"  # cart-0.8, held-out drives: +1.9 t% points all int8 (MinMax), +0.6 without them
@@ -104,14 +114,21 @@ class QuantizeReport:
         q = self.quantization
         lines = [f"quantised {self.conv_nodes} Conv nodes ({q['scheme']}, weights {q['weight_type']}"
                  f"{' per channel' if q['per_channel'] else ''}, activations {q['activation_type']}, "
-                 f"{q['calibration']['method']} calibration on {q['calibration']['sweeps']} simulated sweeps) "
+                 f"{q['calibration']['method']} calibration on {q['calibration']['sweeps']} sweeps"
+                 f"{_real_note(q['calibration'])}) "
                  f"-> {self.path} ({self.bytes / 2**20:.2f} MiB, {self.qdq_nodes} Q/DQ nodes, {self.seconds:.1f} s)"]
         if self.median_pose_cells is not None:
-            lines.append(f"check: int8 vs fp32 graph on {self.verify_sweeps} simulated sweeps: |Δx, Δy| median "
+            lines.append(f"check: int8 vs fp32 graph on {self.verify_sweeps} held-back sweeps: |Δx, Δy| median "
                          f"{self.median_pose_cells:.3f} cells, p95 {self.p95_pose_cells:.3f}, "
                          f"max {self.max_pose_cells:.3f}; "
                          f"|Δyaw| p95 {self.p95_yaw_rad:.2e} rad, max {self.max_yaw_rad:.2e} rad")
         return "\n".join(lines + self.notes)
+
+
+def _real_note(calibration: dict) -> str:
+    real = calibration.get("real") or []
+    return "".join(f", real: {r['recording']} sweeps {r['sweeps'][0]}–{r['sweeps'][1] - 1} of {r['of']} "
+                   f"(last {r['held_out']} held out)" for r in real)
 
 
 # ----------------------------------------------------------------------------- sweeps
@@ -127,6 +144,41 @@ def calibration_drives(info: ModelInfo, seeds: Sequence[int] = CALIBRATION_SEEDS
     specs = sim_specs(seeds, scenarios, frames)
     drives = build_drives(info.profile, specs, workers, with_labels=False, desc="calibration drives")
     return [np.asarray(d.images, dtype=np.float32) for d in drives]
+
+
+def quantize_scheme(name: str) -> str:
+    """The scheme a ``--quantize`` word names (``static``; ``int8`` is its synonym); `ExportError` otherwise."""
+    if name not in QUANTIZE_CHOICES:
+        raise ExportError(f"quantize must be one of {QUANTIZE_CHOICES} (int8 is a synonym of static), got {name!r}")
+    return SCHEME
+
+
+def real_calibration_drives(info: ModelInfo, paths: Sequence, holdout: int = REAL_HOLDOUT,
+                            max_sweeps: int | None = None) -> tuple[list[np.ndarray], dict]:
+    """Real recordings as float32[F, W, W] Cartesian sweeps on ``info``'s grid, each without its last
+    ``holdout`` sweeps (never calibrated on), at most ``max_sweeps`` consecutive sweeps from its start;
+    and their provenance for the metadata: ``{"real": [{"recording", "sweeps": [first, end), "of",
+    "held_out"}]}``. `ExportError` where a recording has fewer than two sweeps outside the held-out stretch."""
+    if info.profile.input_kind != "cartesian":
+        raise ExportError("int8 quantisation is implemented for Cartesian-input models only")
+    from radar_odom.errors import StampWarning
+    from radar_odom.io import read_sequence
+
+    from .data import scan_to_cartesian
+
+    drives, used = [], []
+    for path in paths:
+        with warnings.catch_warnings():  # the sweeps' stamps are not used here: their repair is no news
+            warnings.simplefilter("ignore", StampWarning)
+            seq = read_sequence(path)
+        end = len(seq) - int(holdout)
+        if max_sweeps is not None:
+            end = min(end, int(max_sweeps))
+        if end < 2:
+            raise ExportError(f"{path}: {len(seq)} sweeps, {holdout} held out: fewer than two to calibrate on")
+        drives.append(np.stack([scan_to_cartesian(seq.scan(i), info.profile) for i in range(end)]).astype(np.float32))
+        used.append({"recording": Path(path).name, "sweeps": [0, end], "of": len(seq), "held_out": int(holdout)})
+    return drives, {"real": used}
 
 
 def stream_feeds(session, info: ModelInfo, drives: Sequence[np.ndarray], every: int = 1) -> list[dict]:
@@ -235,7 +287,9 @@ def quantize_model(src, path, *, drives: Sequence[np.ndarray] | None = None, ver
                    per_channel: bool = True, activation_type: str = "uint8", method: str = "percentile",
                    calibration_every: int = 2, calibration: dict | None = None, verify: bool = True,
                    tolerance: Int8Tolerance = INT8_TOLERANCE, threads: int = 1,
-                   exclude: str = DEFAULT_FLOAT_CONVS, extra_options: dict | None = None) -> QuantizeReport:
+                   exclude: str = DEFAULT_FLOAT_CONVS, extra_options: dict | None = None,
+                   real: Sequence = (), real_holdout: int = REAL_HOLDOUT,
+                   real_max_sweeps: int | None = None) -> QuantizeReport:
     """Write an int8-masker copy of the radar-odom file ``src`` to ``path`` (see the module doc).
 
     ``drives``: calibration sweeps, a list of float32[F, W, W] (default: `calibration_drives`);
@@ -247,6 +301,10 @@ def quantize_model(src, path, *, drives: Sequence[np.ndarray] | None = None, ver
     order) stay float32 — the first reads the heavy-tailed normalised sweep, the last writes the
     mask logits. ``calibration``: provenance
     recorded in the metadata. ``extra_options``: passed to ``quantize_static`` (and recorded).
+    ``real``: real recordings (e.g. the shared RADIATE drive) whose sweeps, all but the last
+    ``real_holdout`` (at most ``real_max_sweeps`` from the start), are added to ``drives`` —
+    half of each for calibration, half for the check, like the simulated ones — and named in the
+    metadata's ``calibration.real``.
     `ExportError` if a check fails; ``path`` is then untouched.
     """
     import onnx
@@ -273,6 +331,10 @@ def quantize_model(src, path, *, drives: Sequence[np.ndarray] | None = None, ver
         calibration = {**(calibration or {}), "seeds": list(CALIBRATION_SEEDS),
                        "scenarios": list(CALIBRATION_SCENARIOS), "frames": 120}
     drives = [np.asarray(d, dtype=np.float32) for d in drives]
+    if real:
+        real_drives, provenance = real_calibration_drives(info, real, real_holdout, real_max_sweeps)
+        drives = drives + real_drives
+        calibration = {**(calibration or {}), **provenance}
     if verify_drives is None:  # hold back the second half of each drive
         verify_drives = [d[len(d) // 2:] for d in drives]
         drives = [d[: len(d) // 2] for d in drives]
@@ -309,7 +371,7 @@ def quantize_model(src, path, *, drives: Sequence[np.ndarray] | None = None, ver
         proto = onnx.load(str(tmp))
         convs, qdqs = check_qdq_conv_only(proto, float_convs=excluded)
         quantization = {
-            "scheme": "qdq-static", "op_types": ["Conv"], "nodes": convs,
+            "scheme": SCHEME, "format": "qdq", "op_types": ["Conv"], "nodes": convs,
             "float_nodes": [w for w in ("first", "last") if w in which], "weight_type": "int8",
             "activation_type": activation_type, "per_channel": bool(per_channel),
             "calibration": {"method": method, "sweeps": len(feeds), "every": calibration_every,
@@ -352,7 +414,7 @@ def quantize_model(src, path, *, drives: Sequence[np.ndarray] | None = None, ver
             if (report.median_pose_cells > tolerance.median_cells or report.p95_pose_cells > tolerance.p95_cells
                     or med_yaw > tolerance.median_yaw_rad or report.p95_yaw_rad > tolerance.p95_yaw_rad):
                 raise ExportError(
-                    f"the int8 graph strays from the fp32 graph on {len(d)} simulated sweeps: |Δx, Δy| median "
+                    f"the int8 graph strays from the fp32 graph on {len(d)} held-back sweeps: |Δx, Δy| median "
                     f"{report.median_pose_cells:.3g} cells (tolerance {tolerance.median_cells:g}), p95 "
                     f"{report.p95_pose_cells:.3g} (tolerance {tolerance.p95_cells:g}); |Δyaw| median {med_yaw:.3g} "
                     f"rad (tolerance {tolerance.median_yaw_rad:g}), p95 {report.p95_yaw_rad:.3g} (tolerance "
@@ -365,16 +427,18 @@ def quantize_model(src, path, *, drives: Sequence[np.ndarray] | None = None, ver
     return report
 
 
-def export_quantized(checkpoint, path, *, quantize: str = "int8", exclude: str = DEFAULT_FLOAT_CONVS,
-                     verify: bool = True,
-                     drives: Sequence[np.ndarray] | None = None, **export_kwargs):
+def export_quantized(checkpoint, path, *, quantize: str = SCHEME, exclude: str = DEFAULT_FLOAT_CONVS,
+                     verify: bool = True, drives: Sequence[np.ndarray] | None = None,
+                     calibration: dict | None = None, real: Sequence = (), real_holdout: int = REAL_HOLDOUT,
+                     **export_kwargs):
     """`onnx_export.export_checkpoint` to a temporary fp32 file (checked, verified against torch
     when ``verify``), then `quantize_model` from it to ``path`` (verified against that fp32 file);
-    the fp32 file is removed either way. Returns (fp32 `ExportReport`, `QuantizeReport`)."""
+    the fp32 file is removed either way. ``real``: recordings whose sweeps, but their last
+    ``real_holdout``, join the calibration (`real_calibration_drives`). Returns (fp32 `ExportReport`,
+    `QuantizeReport`)."""
     from .onnx_export import export_checkpoint
 
-    if quantize not in QUANTIZE_CHOICES:
-        raise ExportError(f"quantize must be one of {QUANTIZE_CHOICES}, got {quantize!r}")
+    quantize_scheme(quantize)
     if (export_kwargs.get("form") or "stream") != "stream":
         raise ExportError("--quantize needs the stream form (its calibration feeds the stream state)")
     path = Path(path)
@@ -384,7 +448,8 @@ def export_quantized(checkpoint, path, *, quantize: str = "int8", exclude: str =
     tmp = Path(tmp_name)
     try:
         fp32 = export_checkpoint(checkpoint, tmp, verify=verify, **export_kwargs)
-        q = quantize_model(tmp, path, drives=drives, exclude=exclude, verify=verify)
+        q = quantize_model(tmp, path, drives=drives, exclude=exclude, verify=verify, calibration=calibration,
+                           real=real, real_holdout=real_holdout)
     finally:
         tmp.unlink(missing_ok=True)
     return fp32, q
