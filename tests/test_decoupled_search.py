@@ -178,8 +178,7 @@ def test_export_by_shipped_name_reproduces_the_shipped_search(monkeypatch, capsy
     """`radar-odom export cart-0.4` exports with the shipped file's search, settings and form
     (its metadata), unless --search says otherwise."""
     from radar_odom.commands.cli import main
-    from radar_odom.commands.export import shipped_export
-    from radar_odom.model_zoo import pretrained, pretrained_names
+    from radar_odom.model_zoo import pretrained, pretrained_names, shipped_export
     from radar_odom.onnx_model import OnnxModel
 
     if "cart-0.4" not in pretrained_names():

@@ -1,3 +1,4 @@
+import importlib.util
 import subprocess
 import sys
 
@@ -173,8 +174,10 @@ def test_the_layering_check_sees_a_wrong_import():
 
 def _export_reaching_into_commands(graph: dict[str, set[str]]) -> list[str]:
     """Imports from the torch side (``radar_odom_export``) up into the command line (``radar_odom.commands``):
-    the exporter sits beside the runtime's lower layers, below ``commands/`` (issue 42, item 6)."""
-    return [f"{mod} imports {dep}" for mod, deps in sorted(graph.items()) if mod.startswith("radar_odom_export")
+    the exporter sits beside the runtime's lower layers, below ``commands/`` (issue 42, item 6). Its own
+    subcommands (``radar_odom_export.commands``, issue 52) are the command line and may."""
+    return [f"{mod} imports {dep}" for mod, deps in sorted(graph.items())
+            if mod.startswith("radar_odom_export") and not mod.startswith("radar_odom_export.commands")
             for dep in sorted(deps) if dep == "radar_odom.commands" or dep.startswith("radar_odom.commands.")]
 
 
@@ -190,6 +193,7 @@ def test_the_export_layering_check_sees_a_wrong_import():
         "radar_odom_export.adapt": {"radar_odom.commands.export", "radar_odom.io.recording"},
         "radar_odom_export.train": {"radar_odom.commands"},
         "radar_odom.commands.adapt": {"radar_odom_export.adapt"},
+        "radar_odom_export.commands.adapt": {"radar_odom.commands", "radar_odom_export.adapt"},
     }) == ["radar_odom_export.adapt imports radar_odom.commands.export",
            "radar_odom_export.train imports radar_odom.commands"]
 
@@ -205,4 +209,5 @@ def test_every_command_help_prints_no_doubled_percent():
     for name, p in sub.choices.items():
         text = p.format_help()
         assert "%%" not in text, (name, text[text.index("%%") - 60: text.index("%%") + 10])
-    assert "20 %" in sub.choices["train"].format_help()
+    if importlib.util.find_spec("radar_odom_export") is not None:  # train's own help (the torch side's)
+        assert "20 %" in sub.choices["train"].format_help()

@@ -49,7 +49,8 @@ def test_the_torch_install_line_names_the_cpu_wheel_index_everywhere():
     ci = (ROOT / ".ci" / "run").read_text()
     assert f"torch=={TORCH_VERSION}" in ci
     text = str(MissingExtraError("torch", "export"))
-    assert TORCH_CPU_INDEX in text and 'pip install -e ".[export]"' in text and f"torch=={TORCH_VERSION}" in text
+    assert TORCH_CPU_INDEX in text and "pip install -e ./export" in text and "pip install radar-odom-export" in text
+    assert f"torch=={TORCH_VERSION}" in text
     assert 'pip install -e ".[ros]"' in str(MissingExtraError("rosbags", "ros"))
 
 

@@ -129,7 +129,7 @@ def test_budget_line_names_the_end_time_and_how_to_go_on():
 
 
 def test_export_calibrates_with_the_calibrate_commands_own_defaults():
-    from radar_odom.commands import calibrate
+    from radar_odom_export.commands import calibrate
 
     args = calibrate.default_args("m.pt", search="fast", threads=1)
     assert (args.checkpoint, args.search, args.threads, args.sim_seeds, args.covariance) == (

@@ -189,16 +189,24 @@ def test_help_texts_carry_no_empty_defaults(command, capsys):
     assert "(default: None)" not in text and "(default: [])" not in text and "(default: False)" not in text
 
 
+@pytest.mark.torch
+def test_calibrate_defaults_to_the_shipped_search():
+    import argparse
+
+    calibrate = pytest.importorskip("radar_odom_export.commands.calibrate", reason="the torch side (radar-odom-export)")
+    parser = argparse.ArgumentParser()
+    calibrate.register(parser.add_subparsers(dest="command"))
+    assert parser.parse_args(["calibrate", "m.pt"]).search == "fast"  # the shipped models' search
+
+
 def test_defaults_match_what_ships(capsys):
     import argparse
 
-    from radar_odom.commands import calibrate, demo
+    from radar_odom.commands import demo
 
     parser = argparse.ArgumentParser()
     sub = parser.add_subparsers(dest="command")
-    calibrate.register(sub)
     demo.register(sub)
-    assert parser.parse_args(["calibrate", "m.pt"]).search == "fast"  # the shipped models' search
     with pytest.raises(SystemExit):
         parser.parse_args(["demo", "--scenario", "motorway"])
     assert "invalid choice: 'motorway'" in capsys.readouterr().err

@@ -31,25 +31,30 @@ class ExportError(RadarOdomError, ValueError):
 #: the PyTorch wheel index of CPU-only builds: without it pip fetches a multi-GB CUDA torch
 TORCH_CPU_INDEX = "https://download.pytorch.org/whl/cpu"
 TORCH_VERSION = "2.13.0"
-#: how to install the export extra (torch) without a CUDA build, from a checkout or from an index
+#: the torch side's distribution (built from export/, its own pyproject.toml): training, export, calibration, adapt
+EXPORT_DISTRIBUTION = "radar-odom-export"
+#: how to install the torch side without a CUDA build, from a checkout or from an index
 EXPORT_INSTALL_HINT = (
     f"pip install torch=={TORCH_VERSION} --extra-index-url {TORCH_CPU_INDEX} (the CPU build; a plain torch "
-    "requirement pulls a multi-GB CUDA build), then pip install -e \".[export]\" in a checkout, or "
-    "pip install \"radar-odom[export]\""
+    f"requirement pulls a multi-GB CUDA build), then pip install {EXPORT_DISTRIBUTION} (in a checkout: "
+    "pip install -e ./export)"
 )
 
 
 class MissingExtraError(RadarOdomError, ImportError):
     """An optional dependency is not installed; the message gives the pip lines (installed
-    package and checkout; for the ``export`` extra the CPU torch build first)."""
+    package and checkout). ``extra="export"`` names the torch side, a distribution of its own
+    (``radar-odom-export``): the CPU torch build first, then that."""
 
-    def __init__(self, module: str, extra: str | None, how: str | None = None):
-        if how is None and extra == "export":
-            how = EXPORT_INSTALL_HINT
+    def __init__(self, module: str, extra: str | None, how: str | None = None, subject: str | None = None):
+        if extra == "export":  # the torch side is a distribution of its own (radar-odom-export), not an extra
+            how = EXPORT_INSTALL_HINT if how is None else how
+            subject = subject or f"{module!r} is needed for this (the torch side, {EXPORT_DISTRIBUTION})"
         elif how is None:
             how = f"pip install \"radar-odom[{extra}]\" (in a checkout: pip install -e \".[{extra}]\")"
         which = f" (the {extra} extra)" if extra else ""
-        super().__init__(f"{module!r} is needed for this{which}; install it with: {how}")
+        subject = subject or f"{module!r} is needed for this{which}"
+        super().__init__(f"{subject}; install it with: {how}")
 
 
 class InvalidModelError(ModelMismatchError):

@@ -3,7 +3,14 @@
 ``register`` only declares arguments (imports nothing heavy, so ``--help`` is instant) and sets
 ``func`` to a callable taking the parsed ``args`` that does the work, importing what it needs.
 A command module is listed here only once it works.
+
+Two distributions provide them (issue 52): the runtime (``radar-odom``: this package) and the torch
+side (``radar-odom-export``, built from export/), whose commands (`TORCH_COMMANDS`) live in
+``radar_odom_export.commands`` and reach this command line through the entry-point group
+`ENTRY_POINT_GROUP`. Where that distribution is not installed each of them is still listed, and says
+how to install it (`radar_odom.commands.cli`).
 """
+#: every subcommand, in the order ``radar-odom --help`` lists them
 COMMANDS: list[str] = [
     "export",
     "run",
@@ -16,6 +23,18 @@ COMMANDS: list[str] = [
     "profile",
     "models",
 ]
+
+#: the entry-point group through which an installed distribution adds subcommands: ``name = "module:register"``
+ENTRY_POINT_GROUP = "radar_odom.commands"
+
+#: the commands the torch side provides (its pyproject.toml registers them in `ENTRY_POINT_GROUP`), with the
+#: one-line help listed when it is not installed
+TORCH_COMMANDS: dict[str, str] = {
+    "export": "export a trained checkpoint to one ONNX graph",
+    "train": "train the masker from pose supervision",
+    "calibrate": "tune a checkpoint's covariance temperature",
+    "adapt": "fine-tune a model on a user's own recordings",
+}
 
 
 def help_formatter():

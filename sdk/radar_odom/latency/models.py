@@ -11,7 +11,7 @@ from ..errors import EXPORT_INSTALL_HINT, RadarOdomError
 def untrained_model(profile_name: str, out_dir, search: str = "fast") -> Path:
     """Export (once; cached in ``out_dir``) an untrained learned-mask model of ``profile_name``.
 
-    Runs in a child interpreter: this needs torch (the export extra, `EXPORT_INSTALL_HINT`), and
+    Runs in a child interpreter: this needs torch (the radar-odom-export distribution, `EXPORT_INSTALL_HINT`), and
     keeping it out of this process keeps the memory figures honest.
     """
     path = Path(out_dir) / f"untrained-{profile_name}-{search}.onnx"
@@ -25,7 +25,7 @@ def untrained_model(profile_name: str, out_dir, search: str = "fast") -> Path:
             raise RadarOdomError(
                 f"no model given for {profile_name} and torch is not installed to export an untrained "
                 f"one: leave it out (--profiles with the others, e.g. --profiles cart-0.8 cart-0.4), pass "
-                f"--models PATH.onnx, or install the export extra ({EXPORT_INSTALL_HINT})")
+                f"--models PATH.onnx, or install the torch side, radar-odom-export ({EXPORT_INSTALL_HINT})")
         raise RadarOdomError(f"exporting an untrained {profile_name} model failed:\n{proc.stderr[-2000:]}")
     return path
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import argparse
 
-from . import cli_warnings, threads_arg
+from radar_odom.commands import cli_warnings, threads_arg
 
 HELP = "adapt a shipped model to your radar from its own recordings (no ground truth needed)"
 
@@ -26,7 +26,7 @@ Under `torchrun --nproc_per_node=N -m radar_odom adapt ...` the ranks train toge
 
 
 def register(subparsers) -> None:
-    from . import help_formatter
+    from radar_odom.commands import help_formatter
 
     class Formatter(help_formatter(), argparse.RawDescriptionHelpFormatter):
         pass
@@ -78,7 +78,8 @@ def interrupted(args, exc) -> str:
 def run(args) -> int:
     from pathlib import Path
 
-    from ..errors import MissingExtraError, OutputError
+    from radar_odom.errors import MissingExtraError, OutputError
+
     from .train import note_state
 
     try:
@@ -99,9 +100,8 @@ def run(args) -> int:
                                     + (f" --sweeps {args.sweeps}" if args.sweeps else "")})
     labeller = None
     if args.ray or args.address:
+        from radar_odom.fleet.scheduler import import_ray
         from radar_odom_export.adapt_labels import ray_labeller
-
-        from ..fleet.scheduler import import_ray
 
         import_ray()  # the install line now, not after the base model is prepared
         labeller = ray_labeller(args.address)

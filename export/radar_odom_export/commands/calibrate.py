@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import argparse
 
-from . import threads_arg
+from radar_odom.commands import threads_arg
 
 HELP = "calibrate a checkpoint's covariance on held-out drives (mean d² ≈ 3, per axis)"
 
@@ -86,7 +86,7 @@ def default_args(checkpoint: str, **overrides) -> argparse.Namespace:
 
 
 def run(args) -> int:
-    from ..errors import MissingExtraError
+    from radar_odom.errors import MissingExtraError
 
     try:
         import torch  # noqa: F401

@@ -9,10 +9,10 @@ written as the shipped models are: the fast search, the stream form, and a calib
 that command's defaults; ``--no-calibrate`` writes it as it is, with a warning)."""
 from __future__ import annotations
 
-from ..model_file import DEFAULT_OPSET, MIN_EXPORT_OPSET
-from ..model_zoo import shipped_export  # noqa: F401  (re-exported: its home is radar_odom.model_zoo)
-from ..outputs import check_output_path  # noqa: F401  (re-exported: its home is radar_odom.outputs)
-from . import threads_arg
+from radar_odom.commands import threads_arg
+from radar_odom.model_file import DEFAULT_OPSET, MIN_EXPORT_OPSET
+from radar_odom.model_zoo import shipped_export  # noqa: F401  (re-exported: its home is radar_odom.model_zoo)
+from radar_odom.outputs import check_output_path  # noqa: F401  (re-exported: its home is radar_odom.outputs)
 
 DEFAULT_CALIBRATION_MINUTES = 3.0  # `--calibration-minutes`: an export that calibrates first ends in a known time
 HELP = "export a trained checkpoint to one self-contained ONNX graph (sweep in, pose + covariance out)"
@@ -88,7 +88,7 @@ def run(args) -> int:
     import time
     from pathlib import Path
 
-    from ..errors import MissingExtraError, OutputError
+    from radar_odom.errors import MissingExtraError, OutputError
 
     try:
         from radar_odom_export.checkpoint import resolve_checkpoint
@@ -97,7 +97,7 @@ def run(args) -> int:
         raise MissingExtraError(getattr(exc, "name", None) or "torch", "export") from exc
     args.started = time.perf_counter()  # a calibration's budget counts from here
     if args.no_calibrate and args.calibration_data:  # issue 51: the data was ignored without a word
-        from ..errors import ConfigError
+        from radar_odom.errors import ConfigError
 
         raise ConfigError("--no-calibrate and --calibration-data contradict each other: drop --no-calibrate to "
                           "calibrate on that data, or drop --calibration-data to export uncalibrated")
@@ -136,7 +136,7 @@ def run(args) -> int:
     if settings is not None:
         common["search_settings"] = settings
     if args.quantize and form == "sweep":
-        from ..errors import ConfigError
+        from radar_odom.errors import ConfigError
 
         raise ConfigError("--quantize writes the stream form only; the sweep form of an int8 graph is not made "
                           "(leave out --quantize, or --form)")
@@ -163,7 +163,7 @@ def run(args) -> int:
 def check_calibration_minutes(args) -> None:
     """`ConfigError` in one line for a ``--calibration-minutes`` that is no budget (negative, not finite, beyond a
     week), before any work."""
-    from ..budgets import check_budget_minutes
+    from radar_odom.budgets import check_budget_minutes
 
     check_budget_minutes(args.calibration_minutes, "--calibration-minutes")
 
@@ -190,10 +190,9 @@ def check_fast_rotation(checkpoint, search: str) -> None:
     any calibration or tracing, with what to do."""
     import math
 
+    from radar_odom.errors import ConfigError
     from radar_odom_export.checkpoint import read_checkpoint_dict
     from radar_odom_export.correlation import divides_turn
-
-    from ..errors import ConfigError
 
     if search != "fast":
         return
@@ -261,7 +260,7 @@ def check_opset(opset: int) -> None:
     onnx knows (``onnx.defs.onnx_opset_version()``); said before the checkpoint is traced."""
     import onnx
 
-    from ..errors import ConfigError
+    from radar_odom.errors import ConfigError
 
     newest = onnx.defs.onnx_opset_version()
     if not MIN_EXPORT_OPSET <= opset <= newest:

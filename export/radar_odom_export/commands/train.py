@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import argparse
 
-from . import threads_arg
+from radar_odom.commands import threads_arg
 
 DEFAULT_MINUTES = 20.0  # a first run ends in a known time; --resume continues it
 
@@ -214,7 +214,7 @@ def _stamp(path):
 
 
 def run(args) -> int:
-    from ..errors import MissingExtraError
+    from radar_odom.errors import MissingExtraError
 
     try:
         import torch  # noqa: F401
