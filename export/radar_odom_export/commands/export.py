@@ -1,5 +1,5 @@
 """``radar-odom export model.pt [-o model.onnx] [--form stream|pair|sequence|sweep] [--search exhaustive|fast]
-[--opset N] [--exporter auto|dynamo|torchscript] [--quantize int8]``.
+[--opset N] [--exporter auto|dynamo|torchscript] [--quantize static [--quantize-real SEQ]]``.
 
 A shipped name (``radar-odom export cart-0.4``) reproduces the shipped model: its search, search
 settings and form are read from the shipped ONNX file's metadata (``radar_odom.search``,
@@ -68,13 +68,16 @@ def register(subparsers) -> None:
     p.add_argument("--exporter", choices=("auto", "dynamo", "torchscript"), default="auto",
                    help="torch.onnx exporter; auto: dynamo, falling back to TorchScript only if the dynamo "
                         "exporter itself fails (default: auto)")
-    p.add_argument("--quantize", choices=("int8",), default=None,
-                   help="int8: quantise the masker's Conv nodes (static QDQ, int8 weights per channel, uint8 "
-                        "activations, percentile calibration on simulated validation drives, seeds 2000-2001); "
-                        "the correlation stays float32. "
-                        "Verified against the float32 export on held-back simulated sweeps (--no-verify skips "
-                        "this too); recorded in the "
-                        "metadata as radar_odom.quantization (default: float32 throughout)")
+    p.add_argument("--quantize", choices=("static", "int8"), default=None,
+                   help="static: quantise the masker's Conv nodes (static QDQ, int8 weights per channel, uint8 "
+                        "activations, percentile ranges calibrated on simulated validation drives, seeds "
+                        "2000-2001, plus the sweeps of --quantize-real); the correlation stays float32; int8 is "
+                        "an earlier name of static. Verified against the float32 export on held-back simulated "
+                        "sweeps (--no-verify skips this too); the scheme and its calibration data are recorded "
+                        "in the metadata as radar_odom.quantization (default: float32 throughout)")
+    p.add_argument("--quantize-real", action="append", default=[], metavar="SEQ",
+                   help="with --quantize: a real recording whose sweeps join the calibration, all but its last "
+                        "80 (held out, as calibrate's --real holds them out); repeatable")
     p.add_argument("--quantize-float", default="first,last", metavar="first,last|none",
                    help="with --quantize: which of the masker's Conv nodes stay float32: first, last, both, or "
                         "none (default: %(default)s)")
@@ -101,6 +104,11 @@ def run(args) -> int:
 
         raise ConfigError("--no-calibrate and --calibration-data contradict each other: drop --no-calibrate to "
                           "calibrate on that data, or drop --calibration-data to export uncalibrated")
+    if args.quantize_real and not args.quantize:
+        from radar_odom.errors import ConfigError
+
+        raise ConfigError("--quantize-real calibrates a quantised masker: give --quantize static too, or leave "
+                          "it out")
     check_calibration_minutes(args)
     check_opset(args.opset)
     ckpt = resolve_checkpoint(args.checkpoint)
@@ -146,7 +154,8 @@ def run(args) -> int:
         except ImportError as exc:
             raise MissingExtraError(getattr(exc, "name", None) or "onnxruntime", "export") from exc
         keep = "" if args.quantize_float == "none" else args.quantize_float
-        fp32, quant = export_quantized(ckpt, out, quantize=args.quantize, exclude=keep, **common)
+        fp32, quant = export_quantized(ckpt, out, quantize=args.quantize, exclude=keep,
+                                       real=[Path(r) for r in args.quantize_real], **common)
         print(fp32.summary().replace(f"wrote {fp32.path}", "exported (float32, temporary)"))
         print(quant.summary())
         return 0
