@@ -8,7 +8,7 @@ correlation slice at the estimated yaw | covariance ellipse. In the input panel 
 whose power is *not* labelled static by the simulator (moving vehicles, ghosts, streaks,
 noise) are outlined in magenta, so one can check that the mask removes them and keeps walls.
 The ellipse panel shows the soft-argmax estimate with its 1σ and 3σ x–y ellipses against the
-ground truth. Needs the export extra (torch) and matplotlib.
+ground truth. Needs the torch side, radar-odom-export (pip install -e ./export) and matplotlib.
 """
 from __future__ import annotations
 

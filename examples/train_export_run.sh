@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Your own model end to end on simulated drives, small settings: train (3 min) -> export, which
 # calibrates the covariance first (3 min) -> run on a held-out drive (README "Your own model").
-# Needs the export extra: pip install "radar-odom[export,cli]".
+# Needs the torch side: pip install torch==2.13.0 --extra-index-url https://download.pytorch.org/whl/cpu, then
+# pip install -e ".[cli]" -e ./export in a checkout (radar-odom-export: train, calibrate, export).
 #   bash examples/train_export_run.sh [WORKDIR]
 set -euo pipefail
 work="${1:-radar-odom-example}"

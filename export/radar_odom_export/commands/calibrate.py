@@ -26,7 +26,7 @@ Boreas/MulRan poses, a RADIATE GNSS/INS track aligned as `radar-odom run` aligns
 last --real-holdout sweeps left out for an honest test; their pairs then carry --real-share of
 the per-axis fit (by default all of it: real sweeps have error sources the simulator lacks, and a
 few hundred real pairs would otherwise count for little beside thousands of simulated ones).
-Needs the export extra (torch)."""
+Needs the torch side, radar-odom-export (pip install -e ./export)."""
 
 
 def register(subparsers) -> None:

@@ -24,7 +24,7 @@ def register(subparsers) -> None:
         "from `radar-odom train`) is first calibrated in place as `radar-odom calibrate CHECKPOINT` would "
         "(simulated held-out drives, within --calibration-minutes, with a progress bar and the d² table), so "
         "the file written is what the shipped models are: fast search, stream form, calibrated covariance. Needs "
-        "the export extra (torch, onnx, onnxscript)."
+        "the torch side, radar-odom-export (torch, onnx, onnxscript)."
     )
     p.add_argument("checkpoint", help="checkpoint written by `radar-odom train` (.pt), or the name of a "
                                       "shipped one (cart-0.8, cart-0.4): the weights of the pretrained models")

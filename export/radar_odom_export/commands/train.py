@@ -30,7 +30,7 @@ and OUTPUT.loss.png; the last line gives the best epoch's validation pose error 
 and its validation loss (the trained objective) apart. `radar-odom export OUTPUT` then
 calibrates the covariance (unless already calibrated) and writes the ONNX model.
 Runs under `torchrun --nproc_per_node=N -m radar_odom train ...` with DistributedDataParallel
-(gloo on CPU). Needs the export extra (torch)."""
+(gloo on CPU). Needs the torch side, radar-odom-export (pip install -e ./export)."""
 
 
 def register(subparsers) -> None:
