@@ -7,7 +7,8 @@ The paper's qualitative figure on real data: the sweep is drawn on each checkpoi
 as the runtime draws it (polar → Cartesian, near range blanked), the mask is the U-Net's output
 and the masked sweep is what the correlation sees (mask ⊙ normalised sweep). The default sweep
 lies in the last 80 sweeps of the shared drive, which ``radar-odom train --real`` never trains
-on. Needs the torch side, radar-odom-export (pip install -e ./export) and matplotlib. Real sweeps are read where they lie.
+on. Needs the torch side, radar-odom-export (pip install -e ./export) and matplotlib. Real sweeps
+are read where they lie.
 """
 from __future__ import annotations
 

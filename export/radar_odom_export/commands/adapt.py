@@ -21,7 +21,8 @@ it did not collapse toward standing still; else the base's masker is written wit
 (--keep forces the choice). The report compares shipped, base + mount and fine-tuned + mount
 there (KITTI too where the recording has a reference). Writes OUTPUT (.onnx, searching like the
 base), the checkpoint beside it (.pt) and the report (.adapt.json). Interrupted? Run the same
-command with --resume. Needs the torch side, radar-odom-export (pip install -e ./export). About 15 min for 230 sweeps on 2 CPU cores.
+command with --resume. Needs the torch side, radar-odom-export (pip install -e ./export). About 15 min
+for 230 sweeps on 2 CPU cores.
 Under `torchrun --nproc_per_node=N -m radar_odom adapt ...` the ranks train together; rank 0 writes (docs/fleet.md)."""
 
 
