@@ -363,3 +363,34 @@ def test_adapt_under_torchrun_trains_on_two_ranks_and_rank_0_alone_writes(sim_dr
     assert [r["sweeps"] for r in report["recordings"]] == [24, 24]
     assert proc.stdout.count("self-consistency (graph alone)") == 2  # one report, a table per recording
     assert proc.stdout.count(f"wrote {out},") == 1
+
+
+def test_the_budget_covers_simulating_and_leaves_training_at_least_its_share():
+    from radar_odom_export.adapt import SIM_SHARE, training_minutes
+
+    assert training_minutes(12.0, 0.0) == 12.0  # drives cached: all of it trains
+    assert training_minutes(12.0, 60.0) == pytest.approx(11.0)
+    assert training_minutes(12.0, 3600.0) == pytest.approx((1 - SIM_SHARE) * 12.0)  # one slow drive it had to finish
+
+
+@pytest.mark.slow
+@pytest.mark.torch
+def test_adapt_gives_the_simulation_a_deadline_within_its_budget(sim_drive, small_checkpoint, tmp_path, monkeypatch):
+    import time
+
+    from radar_odom_export import adapt as A
+    from radar_odom_export import data as D
+
+    seen = {}
+    real = D.build_drives
+
+    def spy(*a, **kw):
+        seen.update(kw, at=time.perf_counter())
+        return real(*a, **kw)
+
+    monkeypatch.setattr(D, "build_drives", spy)
+    cfg = A.AdaptConfig(base=str(small_checkpoint), minutes=0.05, epochs=1, sim_seeds=(1000,), sim_frames=6,
+                        sim_scenarios=("urban",), threads=1, keep="fine-tuned")
+    A.adapt([sim_drive], tmp_path / "mine.onnx", cfg)
+    assert seen["min_drives"] == 1
+    assert 0 < seen["deadline"] - seen["at"] <= A.SIM_SHARE * 60 * cfg.minutes + 1e-6

@@ -56,12 +56,20 @@ from radar_odom.errors import ConfigError, RadarOdomError, SequenceError
 from radar_odom.se2 import invert, se2_batch, to_xyyaw, turn_frame, wrap_angle
 
 ADAPT_FORMAT = "radar-odom-adapt/1"
-DEFAULT_MINUTES = 12.0  # training budget: with reading, labelling, export and report ≈ 16 min for 230 sweeps
+DEFAULT_MINUTES = 12.0  # simulated drives + training; with reading, labelling, export, report ≈ 16 min for 230 sweeps
+SIM_SHARE = 0.4  # of the budget, at most, for simulating the drives not yet cached (train.SIM_TRAIN_SHARE's share)
 MIN_HELD, MIN_TRAIN = 4, 8  # sweeps: a held-out stretch needs triplets to compare, training a few pairs
 MIN_SWEEPS = MIN_HELD + MIN_TRAIN
 COLLAPSE_RATIO = 0.85  # adapted / shipped mean step length on the held-out stretch below this: refused
 MIN_CHORD_STEP_M = 0.3  # steps shorter than this keep their direction (standing still: none to impose)
 MIN_STRAIGHT_STEPS = 10  # straight steps needed to measure the radar's mount yaw
+
+
+def training_minutes(minutes: float, simulating_s: float) -> float:
+    """What a budget of ``minutes`` (simulating + training) leaves for training after ``simulating_s`` seconds of
+    simulating: the rest, but never less than its share (1 − `SIM_SHARE`): the simulation stops starting drives
+    at its share, and one drive it must finish (a slow machine) is not taken out of the training."""
+    return max(minutes - simulating_s / 60.0, (1.0 - SIM_SHARE) * minutes)
 
 
 @dataclass
@@ -447,11 +455,14 @@ def _adapt(recordings, output, cfg: AdaptConfig, topic, sweeps: slice, labeller,
         drives.append(Drive(f"adapt:{rec.name}[:{cut}]", images[:cut], labels[: cut - 1].astype(np.float32)))
         held.append(Drive(f"adapt:{rec.name}[{cut}:]", images[cut:], labels[cut:].astype(np.float32)))
         rec.cut, rec.rel = cut, rel
+    sim_t0 = time.perf_counter()
     with main_first(d):  # rank 0 fills the drive cache, the others read it
+        # the budget covers simulating (at most SIM_SHARE of it; at least one drive) and training (what is left)
         sim = build_drives(profile, sensor_specs(cfg.sim_seeds, cfg.sim_scenarios, cfg.sim_frames, "randomised"),
-                           min(2, threads), desc="simulated drives")
+                           min(2, threads), desc="simulated drives", min_drives=1 if d.main else 0,
+                           deadline=sim_t0 + SIM_SHARE * 60.0 * cfg.minutes if d.main else -math.inf)
     prep_s = time.perf_counter() - t0
-    remaining = float(cfg.minutes)
+    remaining = training_minutes(cfg.minutes, time.perf_counter() - sim_t0)
     ends = time.strftime("%H:%M", time.localtime(time.time() + 60 * remaining))
     if d.main:
         print(f"adapt: {sum(len(r.scans) for r in recs)} sweeps read and labelled in {prep_s / 60:.1f} min; training "

@@ -39,7 +39,9 @@ def register(subparsers) -> None:
     p.add_argument("--from", dest="base", default="cart-0.4",
                    help="a shipped model's name or a checkpoint (.pt) from `radar-odom train`")
     p.add_argument("--minutes", type=float, default=12.0,
-                   help="training budget, minutes (> 0, at most a week)")
+                   help="budget for simulating the drives not yet cached (at most 40 %% of it) and training, "
+                        "minutes (> 0, at most a week); reading and labelling the recordings come first and are "
+                        "not counted")
     p.add_argument("--epochs", type=int, default=4,
                    help="validations on the held-out stretch (the best is kept); the budget may end sooner")
     p.add_argument("--lr", type=float, default=2e-4, help="learning rate (Adam)")
