@@ -106,3 +106,21 @@ def test_the_command_refuses_a_profile_other_than_the_teachers_or_a_negative_pos
     assert "the student takes the teacher's" in capsys.readouterr().err
     assert main(["train", "-o", out, "--distill-from", "cart-0.4", "--distill-pose-weight", "-1"]) == 1
     assert "give a weight ≥ 0" in capsys.readouterr().err
+
+
+def test_a_student_may_mask_on_a_coarser_grid_and_its_masks_are_full_size(tmp_path, teacher_file):
+    """``train --mask-downsample N`` (issue 52, the frontier): the student's masker runs N times coarser, its
+    mask upsampled to the grid; a masker grid the U-Net's depth does not divide is a typed error."""
+    from radar_odom_export.data import DataSpecError
+    from radar_odom_export.train import distil_profile, resolve_profile
+
+    student = distil_profile(str(teacher_file), None, None, None, mask_downsample=2)
+    assert student.mask_downsample == 2 and student.unet_base_channels == TEACHER.unet_base_channels
+    check_student(student, TEACHER)  # allowed: the masks are compared at the grid's size
+    z = torch.rand(2, TEACHER.width_px, TEACHER.width_px)
+    assert MaskedCorrelator(student, masking="learned")._mask(z).shape == z.shape
+    assert resolve_profile("cart-0.4", mask_downsample=4).mask_downsample == 4
+    with pytest.raises(DataSpecError, match="divisible"):
+        resolve_profile("cart-0.4", mask_downsample=3)
+    with pytest.raises(DataSpecError, match="divisible"):
+        distil_profile(str(teacher_file), None, None, None, mask_downsample=3)

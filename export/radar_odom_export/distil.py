@@ -36,7 +36,7 @@ from .model import mirror_averaged
 
 # fields a student may differ from its teacher in: the U-Net's size, and the calibration (a student is
 # calibrated again after training; its profile starts from the teacher's)
-STUDENT_FIELDS = ("unet_base_channels", "unet_depth")
+STUDENT_FIELDS = ("unet_base_channels", "unet_depth", "mask_downsample")
 CALIBRATION_FIELDS = ("beta_cov", "cov_scale", "cov_floor_cells", "cov_floor_yaw_cells")
 MASK_LOSS_TEXT = "mean[(student mask - (T(z) + flip(T(flip(z))))/2)^2], T the frozen teacher masker"
 
@@ -53,13 +53,17 @@ def mirror_averaged_masks(teacher: nn.Module, z: torch.Tensor) -> torch.Tensor:
     return mirror_averaged(teacher._mask, z)
 
 
-def student_profile(teacher: GridProfile, base_channels: int | None, depth: int | None) -> GridProfile:
-    """The teacher's profile with the student's U-Net width / depth (None: the teacher's)."""
+def student_profile(teacher: GridProfile, base_channels: int | None, depth: int | None,
+                    mask_downsample: int | None = None) -> GridProfile:
+    """The teacher's profile with the student's U-Net width / depth and the grid its masker runs on
+    (``mask_downsample``: the masker on a grid that much coarser, its mask upsampled; None: the teacher's)."""
     changes = {}
     if base_channels:
         changes["unet_base_channels"] = int(base_channels)
     if depth:
         changes["unet_depth"] = int(depth)
+    if mask_downsample:
+        changes["mask_downsample"] = int(mask_downsample)
     return teacher.with_(**changes) if changes else teacher
 
 

@@ -967,9 +967,10 @@ def final_line(output, summary: dict, profile: GridProfile, budget_minutes: floa
 
 # ----------------------------------------------------------------------------- command line
 def resolve_profile(
-    text: str, unet_base_channels: int | None = None, unet_depth: int | None = None, beta_pose: float | None = None
+    text: str, unet_base_channels: int | None = None, unet_depth: int | None = None, beta_pose: float | None = None,
+    mask_downsample: int | None = None,
 ) -> GridProfile:
-    """A named profile, or a JSON file of `GridProfile` fields; U-Net and β overrides applied."""
+    """A named profile, or a JSON file of `GridProfile` fields; U-Net, masker-grid and β overrides applied."""
     from radar_odom.profiles import PROFILES, get_profile
 
     if text in PROFILES:
@@ -988,7 +989,12 @@ def resolve_profile(
         changes["unet_depth"] = unet_depth
     if beta_pose:
         changes["beta_pose"] = changes["beta_cov"] = float(beta_pose)  # calibration retunes beta_cov
-    profile = profile.with_(**changes) if changes else profile
+    if mask_downsample:
+        changes["mask_downsample"] = int(mask_downsample)
+    try:
+        profile = profile.with_(**changes) if changes else profile
+    except ValueError as exc:  # e.g. a masker grid the U-Net's depth does not divide
+        raise DataSpecError(f"--profile {text} with the overrides given: {exc}") from None
     if profile.input_kind != "cartesian":
         raise DataSpecError(
             f"profile {profile.name!r} takes polar input; training data are Cartesian drives — "
@@ -997,7 +1003,8 @@ def resolve_profile(
     return profile
 
 
-def distil_profile(teacher, profile_name: str | None, base_channels: int | None, depth: int | None) -> GridProfile:
+def distil_profile(teacher, profile_name: str | None, base_channels: int | None, depth: int | None,
+                   mask_downsample: int | None = None) -> GridProfile:
     """The student's profile for ``--distill-from``: the teacher checkpoint's (so grid, band limits and
     read-out are the shipped model's) with the U-Net overrides; ``--profile``, if given, must name it."""
     from .checkpoint import read_checkpoint_dict, resolve_checkpoint
@@ -1007,7 +1014,10 @@ def distil_profile(teacher, profile_name: str | None, base_channels: int | None,
     if profile_name and profile_name != teacher_profile.name:
         raise DataSpecError(f"--profile {profile_name}: --distill-from {teacher} has profile "
                             f"{teacher_profile.name!r}; the student takes the teacher's (leave out --profile)")
-    return student_profile(teacher_profile, base_channels, depth)
+    try:
+        return student_profile(teacher_profile, base_channels, depth, mask_downsample)
+    except ValueError as exc:
+        raise DataSpecError(f"--distill-from {teacher}: the student's profile: {exc}") from None
 
 
 def _sim_version() -> int:
@@ -1057,11 +1067,12 @@ def run_from_args(args) -> dict:
         if not (getattr(args, "distill_pose_weight", 0.0) or 0.0) >= 0:
             raise DataSpecError(f"--distill-pose-weight {args.distill_pose_weight}: give a weight ≥ 0")
         if teacher:
-            profile = distil_profile(teacher, args.profile, args.unet_base_channels, args.unet_depth)
+            profile = distil_profile(teacher, args.profile, args.unet_base_channels, args.unet_depth,
+                                     getattr(args, "mask_downsample", None))
         else:
             profile = resolve_profile(
                 args.profile or DEFAULT_PROFILE, args.unet_base_channels, args.unet_depth,
-                getattr(args, "beta_pose", None),
+                getattr(args, "beta_pose", None), getattr(args, "mask_downsample", None),
             )
         if args.masking == "cfar" and profile.input_norm == "none":  # said before any data is built
             raise DataSpecError(
