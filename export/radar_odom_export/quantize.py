@@ -21,7 +21,10 @@ made from the sweep before it. The default calibration drives are validation see
 Real sweeps may be added (`real_calibration_drives`): the shared RADIATE city drive's sweeps *except*
 its held-out last 80 (`REAL_HOLDOUT`, the stretch the scorecard's "real drive held-out" row reads:
 never calibrated or tuned on), read as `radar-odom calibrate` reads them (`data.scan_to_cartesian`);
-the metadata then names the recording, the sweeps used and the held-out count.
+the metadata then names the recording, the sweeps given and the held-out count. As with the
+simulated drives, the first half of each drive given calibrates and its second half is the check's
+(unless other check drives are given): ``"sweeps": [0, 200]`` of the shared drive means 0–99
+calibrated, 100–199 checked, 200–279 never read.
 
 The file keeps the fp32 file's metadata plus ``radar_odom.quantization`` (JSON: scheme, quantised
 op types and node count, weight/activation types, per-channel, calibration method and drives,
@@ -38,8 +41,15 @@ this recipe (percentile, first/last Conv float32) costs +0.45 / +0.41 t% points 
 11.96 → 12.37) for a graph 0.84–0.86× / 0.91–0.94× as slow; every Conv int8 with MinMax ranges
 costs +1.9 points at 0.8 m. Not within the 0.1-point bar for shipping; an export option only.
 
+Re-measured 2026-12-07 (issue 52, `benchmarks/frontier.py`; the shipped cart-0.4 of bada841, this recipe
+calibrated on the simulated validation drives and the shared RADIATE drive's sweeps 0–199): the graph 0.94–0.96×
+today's (interleaved in one process, 2 threads and 1 thread, on a loaded 2-core machine); every Conv int8
+0.97–0.99×, slower than keeping the first and last float. On the release scorecard against the float file: no row
+worse on one run of fresh seeds (generator 1731379452), one row worse on another (810046465: the 0.2 °/sweep
+bend's yaw reading). Not shipped (docs/scorecard.md, "Static int8 cart-0.4 candidates judged and not shipped").
+
 It works on any exported file (no checkpoint, no tracing); its file checks are `onnx_export`'s,
-so it needs the export extra like the rest of this package.
+so it needs torch and onnx like the rest of this package (radar-odom-export).
 """
 from __future__ import annotations
 
