@@ -25,7 +25,8 @@ def test_candidates_are_buildable_or_said_not_built(fr):
         assert spec["settings"] is None or fr.parse_setting(spec["settings"])["coarse_factor"] == 4
         assert spec["quantize"] in (None, "", "first,last")
         assert spec["settings"] or spec["quantize"] is not None, name  # each differs from today's file
-    assert {"half-resolution masker", "coarse-to-fine translation"} <= set(fr.NOT_BUILT)
+    assert {"half-resolution masker, trained", "coarse-to-fine translation"} <= set(fr.NOT_BUILT)
+    assert fr.CANDIDATES["mask-md4"]["mask_downsample"] == 4  # the untrained next halving is built
 
 
 def test_parse_setting(fr):
