@@ -10,8 +10,10 @@ calibrated on simulated validation drives and the shared RADIATE drive without i
 80 sweeps) with the first and last Conv float32, and with every Conv int8; the shipped checkpoint
 re-exported with fewer yaw candidates in the coarse stage (``c4s4b2``, ``c4s6b2``: every 4th / 6th
 yaw instead of every 3rd; the re-export carries the checkpoint's calibration, as the shipped file
-does: checked, the metadata must equal the shipped file's but for the search); and int8 on a fewer-yaw
-export. `NOT_BUILT` lists the candidates the issue names that this script does not build, and why.
+does: checked, the metadata must equal the shipped file's but for the search); int8 on a fewer-yaw
+export; and the masker on a grid 4x coarser than the sweep's (``mask-md4``: the shipped checkpoint with its
+profile's ``mask_downsample`` 4 instead of 2, the weights not trained for it). `NOT_BUILT` lists the candidates
+the issue names that this script does not build, and why.
 
 For every candidate, one row:
 

@@ -42,11 +42,12 @@ this recipe (percentile, first/last Conv float32) costs +0.45 / +0.41 t% points 
 costs +1.9 points at 0.8 m. Not within the 0.1-point bar for shipping; an export option only.
 
 Re-measured 2026-12-07 (issue 52, `benchmarks/frontier.py`; the shipped cart-0.4 of bada841, this recipe
-calibrated on the simulated validation drives and the shared RADIATE drive's sweeps 0–199): the graph 0.94–0.96×
+calibrated on the simulated validation drives and the shared RADIATE drive's sweeps 0–199): the graph 0.94–0.97×
 today's (interleaved in one process, 2 threads and 1 thread, on a loaded 2-core machine); every Conv int8
 0.97–0.99×, slower than keeping the first and last float. On the release scorecard against the float file: no row
 worse on one run of fresh seeds (generator 1731379452), one row worse on another (810046465: the 0.2 °/sweep
-bend's yaw reading). Not shipped (docs/scorecard.md, "Static int8 cart-0.4 candidates judged and not shipped").
+bend's yaw reading; calibrated on simulated drives only, the same row on the same seeds). Not shipped
+(docs/scorecard.md, "Static int8 cart-0.4 candidates judged and not shipped").
 
 It works on any exported file (no checkpoint, no tracing); its file checks are `onnx_export`'s,
 so it needs torch and onnx like the rest of this package (radar-odom-export).
