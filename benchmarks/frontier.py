@@ -161,6 +161,8 @@ def build(name: str, out_dir: Path, log) -> Path:
     spec = CANDIDATES[name]
     if spec.get("build") == "shipped":
         return SHIPPED
+    if spec.get("build") == "file":  # --extra NAME=PATH: a graph built elsewhere (e.g. a trained masker)
+        return Path(spec["path"])
     down = spec.get("mask_downsample")
     src = out_dir / f"{f'md{down}-' if down else ''}{spec['settings']}.onnx" if spec["settings"] else SHIPPED
     path = out_dir / f"{name}.onnx" if spec["quantize"] is not None else src  # a float32 export is its own file
@@ -240,6 +242,9 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=2, help="processes for the accuracy runs (default: %(default)s)")
     ap.add_argument("--today-ms", type=float, default=TODAY_QUIET_MS,
                     help="today's quiet-machine step, for the half-paper line (default: %(default)s, assumed)")
+    ap.add_argument("--extra", action="append", default=[], metavar="NAME=PATH.onnx",
+                    help="also a graph built elsewhere (a cart-0.4 stream file, e.g. a masker trained with train "
+                         "--mask-downsample 4), as candidate NAME; repeatable")
     ap.add_argument("--build-only", action="store_true", help="build the candidates and stop")
     ap.add_argument("--replot", action="store_true",
                     help="redraw OUT/frontier.png from OUT/frontier.json, measure nothing")
@@ -247,6 +252,11 @@ def main(argv=None) -> int:
     if args.replot:
         plot(json.loads((args.out / "frontier.json").read_text()), args.out / "frontier.png")
         return 0
+    for item in args.extra:
+        name, _, path = item.partition("=")
+        if not name or not path.endswith(".onnx") or not Path(path).is_file():
+            ap.error(f"--extra {item!r}: give NAME=PATH.onnx of an existing file")
+        CANDIDATES[name] = {"what": f"a graph built elsewhere: {Path(path).name}", "build": "file", "path": path}
     names = list(CANDIDATES) if not args.only else ["today", *[n for n in args.only.split(",") if n != "today"]]
     unknown = [n for n in names if n not in CANDIDATES]
     if unknown:
