@@ -42,14 +42,14 @@ def _register_missing(sub, name: str) -> None:
     p.set_defaults(func=refuse, missing_command=True)
 
 
-def build_parser(plugins: dict[str, metadata.EntryPoint] | None = None) -> argparse.ArgumentParser:
+def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="radar-odom",
         description="Learned radar odometry (Masking by Moving) as one ONNX graph.",
     )
     parser.add_argument("--version", action="version", version=f"radar-odom {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    plugins = plugin_commands() if plugins is None else plugins
+    plugins = plugin_commands()
     for name in COMMANDS:
         if name not in TORCH_COMMANDS:
             importlib.import_module(f"radar_odom.commands.{name}").register(sub)
