@@ -71,7 +71,7 @@ def test_the_registry_descriptions_are_the_files_own_metadata():
         assert {k: getattr(e, k) for k in model_registry.DESCRIPTION_FIELDS} == \
                {k: facts[k] for k in model_registry.DESCRIPTION_FIELDS}, name
     e = shipped_registry()["cart-0.4"]
-    assert e.grid == "0.4 m × 256 px" and e.form == "stream" and e.search == "fast (c4s3b2)"
+    assert e.grid == "0.4 m × 256 px" and e.form == "stream" and e.search == "fast (c4s6b2)"
     assert "seeds 1000–1009" in e.trained_on and "radiate-2019-02-12-edinburgh" in e.calibrated_on
 
 

@@ -126,10 +126,12 @@ class FastSearchSettings:
 # At 256 px the coarse stage scores every 3rd yaw (issue 43): the parabola through the best coarse
 # score and its neighbours centres the ±2 band as well as every 2nd did (the same poses on 80
 # simulated sweeps, the scorecard no worse: docs/scorecard.md) for two thirds of the coarse rotations
-# (the graph 0.88x; docs/latency.md, "Half the step").
+# (the graph 0.88x; docs/latency.md, "Half the step"); every 6th since issue 52: the shipped cart-0.4 re-exported
+# so held every scorecard row on two fresh runs at 0.95-0.99 of the step (docs/scorecard.md; docs/latency.md,
+# "Speed-accuracy frontier").
 DEFAULT_SETTINGS = {
     128: FastSearchSettings(coarse_factor=2, coarse_stride=2, band_half_width=2),
-    256: FastSearchSettings(coarse_factor=4, coarse_stride=3, band_half_width=2),
+    256: FastSearchSettings(coarse_factor=4, coarse_stride=6, band_half_width=2),
     512: FastSearchSettings(coarse_factor=8, coarse_stride=1, band_half_width=2),
 }
 

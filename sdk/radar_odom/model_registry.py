@@ -11,7 +11,7 @@ Two folders, one file format:
 
     {"format": "radar-odom-registry/1",
      "models": {"NAME": {"file": "NAME.onnx", "sha256": "<64 hex digits>", "size": <bytes>,
-                         "grid": "0.4 m × 256 px", "form": "stream", "search": "fast (c4s3b2)",
+                         "grid": "0.4 m × 256 px", "form": "stream", "search": "fast (c4s6b2)",
                          "trained_on": "...", "calibrated_on": "...",
                          "scorecard": {"date": "...", "section": "...", "line": "..."} or null}}}
 
