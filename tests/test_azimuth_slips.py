@@ -1,19 +1,14 @@
 """`benchmarks/azimuth_slips.py`'s row matcher, the measurement behind the README's finding that
 RADIATE sweeps slip by whole azimuth bins within a sweep: it must find no shift between a sweep
 and itself, a constant shift for a rotation, and the row where a slip starts."""
-import importlib.util
-from pathlib import Path
 
 import numpy as np
 
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "azimuth_slips.py"
+from fixtures import load_script
 
 
 def _row_shifts():
-    spec = importlib.util.spec_from_file_location("azimuth_slips", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod.row_shifts
+    return load_script("benchmarks/azimuth_slips.py").row_shifts
 
 
 def _sweep(seed=0, rows=400, bins=300):

@@ -1,17 +1,12 @@
 """The aarch64 job of .ci/run (issue 52, item 5): its logic offline (pip's answers stubbed); the real check
 needs PyPI and runs in CI (`python .ci/aarch64_wheels.py`)."""
-import importlib.util
 import sys
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from fixtures import ROOT, load_script
 
 
 def load_check():
-    spec = importlib.util.spec_from_file_location("aarch64_wheels", ROOT / ".ci" / "aarch64_wheels.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script(".ci/aarch64_wheels.py")
 
 
 def test_it_checks_every_runtime_dependency_of_pyproject():

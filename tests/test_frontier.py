@@ -1,20 +1,15 @@
 """`benchmarks/frontier.py`'s pure parts: the candidate list, the Pareto set, the pick for a ship check,
 the ratios and the table (nothing is timed or run here)."""
-import importlib.util
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "frontier.py"
+from fixtures import load_script
 
 
 @pytest.fixture(scope="module")
 def fr():
-    spec = importlib.util.spec_from_file_location("frontier", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("benchmarks/frontier.py")
 
 
 def test_candidates_are_buildable_or_said_not_built(fr):

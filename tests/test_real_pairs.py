@@ -107,13 +107,12 @@ def test_the_held_out_stretch_of_the_shared_drive_is_never_a_training_pair(real_
 
 @pytest.mark.real
 def test_the_real_mask_figure_draws_a_held_out_sweep(real_data_dir, tmp_path):
-    import importlib.util
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[1]
-    spec = importlib.util.spec_from_file_location("real_mask_figure", root / "examples" / "real_mask_figure.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    from fixtures import load_script
+
+    mod = load_script("examples/real_mask_figure.py")
     out = tmp_path / "mask.png"
     ckpt = root / "export" / "radar_odom_export" / "checkpoints" / "cart-0.4.pt"
     assert mod.main([str(ckpt), "-o", str(out), "--drive", str(real_data_dir / DRIVE), "--sweep", "240"]) == 0

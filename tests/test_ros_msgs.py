@@ -166,17 +166,14 @@ def _odometry_ns():
 def test_ros_stream_and_the_node_example_turn_radar_messages_into_odometry(cli_model):
     """What examples/ros2_node.py does with each message, without ROS: the same poses as stepping
     the sweeps directly, published in REP-103 with the step covariance."""
-    import importlib.util
-    from pathlib import Path
 
     from radar_odom import RadarOdometer
     from radar_odom.ros.stream import RosOdometryStream
     from radar_odom.sim.simulator import Simulator
 
-    spec = importlib.util.spec_from_file_location(
-        "ros2_node", Path(__file__).resolve().parents[1] / "examples" / "ros2_node.py")
-    node = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(node)  # importable without rclpy: rclpy is imported in main()
+    from fixtures import load_script
+
+    node = load_script("examples/ros2_node.py")  # importable without rclpy: rclpy is imported in main()
 
     scans = [f.scan for f in Simulator(seed=21, frames=4, scenario="urban")]
     direct = RadarOdometer(cli_model, threads=1)

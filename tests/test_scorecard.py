@@ -1,20 +1,15 @@
 """`benchmarks/scorecard.py`'s statistics: the spreads and the ship rule every release is judged by."""
-import importlib.util
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "scorecard.py"
+from fixtures import load_script
 
 
 @pytest.fixture(scope="module")
 def sc():
-    spec = importlib.util.spec_from_file_location("scorecard", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("benchmarks/scorecard.py")
 
 
 def test_mean_se_by_hand(sc):

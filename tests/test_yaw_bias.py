@@ -2,9 +2,7 @@
 reads no yaw; the search after the masker is mirror-equivariant), the learned masker's handedness is,
 and a left/right symmetric masker (`radar_odom_export.symmetry`) removes it; the mirrored world of
 `benchmarks/yaw_bias.py` mirrors the drive."""
-import importlib.util
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,15 +11,13 @@ import radar_odom
 from radar_odom.odometry.sweep_input import SweepMotion, graph_input
 from radar_odom.onnx_model import OnnxModel
 
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "yaw_bias.py"
+from fixtures import load_script
+
 SEED = 41  # a test's drive, not a comparison
 
 
 def _bench():
-    spec = importlib.util.spec_from_file_location("yaw_bias", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("benchmarks/yaw_bias.py")
 
 
 @pytest.fixture(scope="module")
@@ -31,10 +27,7 @@ def frozen_frames():
 
 
 def _bench_scenario():
-    spec = importlib.util.spec_from_file_location("scorecard", SCRIPT.parent / "scorecard.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod.bend_scenario(0.0)
+    return load_script("benchmarks/scorecard.py").bend_scenario(0.0)
 
 
 def _mirror_cart(x: np.ndarray) -> np.ndarray:
